@@ -1,0 +1,220 @@
+"""Unit quaternions in MAVLink order (w, x, y, z), Hamilton convention.
+
+Every function is vectorised over leading axes: a quaternion argument has
+shape ``(..., 4)`` and a 3-vector ``(..., 3)``. A quaternion ``q`` maps body
+vectors to world vectors, ``v_world = q v_body q*``, as MAVLink's
+ATTITUDE_QUATERNION does (body FRD to world NED).
+
+The power ``q**c`` and the antipodal-aware angular distance follow
+Gilitschenski et al., "Unscented Orientation Estimation Based on the Bingham
+Distribution" (unscented paper), sec. II and eq. (4).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = [
+    "IDENTITY",
+    "angular_distance",
+    "as_quaternion",
+    "conjugate",
+    "from_axis_angle",
+    "from_matrix",
+    "from_rotvec",
+    "inverse",
+    "left_matrix",
+    "multiply",
+    "normalize",
+    "power",
+    "right_matrix",
+    "rotate",
+    "to_axis_angle",
+    "to_matrix",
+    "to_rotvec",
+]
+
+IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
+
+_UNIT_TOL = 1e-6
+
+
+def as_quaternion(q: ArrayLike, *, unit: bool = True) -> NDArray[np.float64]:
+    """Return ``q`` as a float array of shape (..., 4), validated.
+
+    Raises ``ValueError`` for a wrong shape, NaN/inf, or (with ``unit``) a
+    norm further than 1e-6 from one.
+    """
+    arr = np.asarray(q, dtype=float)
+    if arr.shape[-1:] != (4,):
+        raise ValueError(f"a quaternion needs 4 components (w, x, y, z), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError("quaternion has NaN or infinite components")
+    if unit:
+        norm = np.linalg.norm(arr, axis=-1)
+        if np.any(np.abs(norm - 1.0) > _UNIT_TOL):
+            worst = float(norm.flat[np.argmax(np.abs(norm - 1.0))])
+            raise ValueError(f"quaternion is not unit length (norm {worst:.9g}); normalize() it first")
+    return arr
+
+
+def normalize(q: ArrayLike) -> NDArray[np.float64]:
+    """Scale ``q`` to unit length; raises ``ValueError`` for zero or non-finite input."""
+    arr = as_quaternion(q, unit=False)
+    norm = np.linalg.norm(arr, axis=-1, keepdims=True)
+    if np.any(norm == 0.0):
+        raise ValueError("cannot normalize a zero quaternion")
+    return arr / norm
+
+
+def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
+    """Hamilton product ``p q`` (apply ``q`` first, then ``p``)."""
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    pw, px, py, pz = np.moveaxis(p, -1, 0)
+    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
+    return np.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
+
+
+def conjugate(q: ArrayLike) -> NDArray[np.float64]:
+    """Quaternion conjugate (w, -x, -y, -z)."""
+    return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def inverse(q: ArrayLike) -> NDArray[np.float64]:
+    """Multiplicative inverse; equals the conjugate for unit quaternions."""
+    arr = np.asarray(q, dtype=float)
+    return conjugate(arr) / np.sum(arr * arr, axis=-1, keepdims=True)
+
+
+def left_matrix(q: ArrayLike) -> NDArray[np.float64]:
+    """Matrix ``L(q)`` with ``L(q) p == multiply(q, p)``."""
+    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    rows = [[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def right_matrix(q: ArrayLike) -> NDArray[np.float64]:
+    """Matrix ``R(q)`` with ``R(q) p == multiply(p, q)``."""
+    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    rows = [[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def rotate(q: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
+    """Rotate 3-vectors: ``q v q*`` (body to world for an attitude quaternion)."""
+    q = np.asarray(q, dtype=float)
+    v = np.asarray(v, dtype=float)
+    w = q[..., :1]
+    u = q[..., 1:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
+
+
+def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
+    """Rotation matrix ``R`` with ``R @ v == rotate(q, v)``."""
+    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def from_matrix(R: ArrayLike) -> NDArray[np.float64]:
+    """Unit quaternion (w >= 0) of a rotation matrix.
+
+    Uses the largest-diagonal branch (Shepperd's method) so that it is accurate
+    for every rotation, including those near 180 degrees.
+    """
+    R = np.asarray(R, dtype=float)
+    if R.shape[-2:] != (3, 3):
+        raise ValueError(f"a rotation matrix must be 3x3, got shape {R.shape}")
+    m00, m11, m22 = R[..., 0, 0], R[..., 1, 1], R[..., 2, 2]
+    cand = np.stack(
+        [
+            np.stack([1 + m00 + m11 + m22, R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1),
+            np.stack([R[..., 2, 1] - R[..., 1, 2], 1 + m00 - m11 - m22, R[..., 0, 1] + R[..., 1, 0], R[..., 0, 2] + R[..., 2, 0]], -1),
+            np.stack([R[..., 0, 2] - R[..., 2, 0], R[..., 0, 1] + R[..., 1, 0], 1 - m00 + m11 - m22, R[..., 1, 2] + R[..., 2, 1]], -1),
+            np.stack([R[..., 1, 0] - R[..., 0, 1], R[..., 0, 2] + R[..., 2, 0], R[..., 1, 2] + R[..., 2, 1], 1 - m00 - m11 + m22], -1),
+        ],
+        axis=-2,
+    )
+    best = np.argmax(np.stack([1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1), axis=-1)
+    q = np.take_along_axis(cand, best[..., None, None], axis=-2)[..., 0, :]
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(q[..., :1] < 0, -q, q)
+
+
+def from_axis_angle(axis: ArrayLike, angle: ArrayLike) -> NDArray[np.float64]:
+    """Quaternion rotating by ``angle`` radians about the unit ``axis``."""
+    axis = np.asarray(axis, dtype=float)
+    norm = np.linalg.norm(axis, axis=-1, keepdims=True)
+    if np.any(norm == 0.0):
+        raise ValueError("rotation axis must be non-zero")
+    half = 0.5 * np.asarray(angle, dtype=float)[..., None]
+    return np.concatenate([np.cos(half), np.sin(half) * axis / norm], axis=-1)
+
+
+def to_axis_angle(q: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Axis (unit 3-vector) and angle in [0, pi] of the rotation ``q``.
+
+    The axis of the identity rotation is returned as (1, 0, 0).
+    """
+    rotvec = to_rotvec(q)
+    angle = np.linalg.norm(rotvec, axis=-1)
+    safe = np.where(angle[..., None] > 0, rotvec / np.where(angle > 0, angle, 1.0)[..., None], [1.0, 0.0, 0.0])
+    return safe, angle
+
+
+def from_rotvec(rotvec: ArrayLike) -> NDArray[np.float64]:
+    """Quaternion of a rotation vector (axis times angle in radians).
+
+    Uses sin(a/2)/a with its Taylor series near zero, so tiny gyro
+    increments keep full precision.
+    """
+    rotvec = np.asarray(rotvec, dtype=float)
+    angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
+    half = 0.5 * angle
+    small = angle < 1e-4
+    sinc = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
+    return np.concatenate([np.cos(half), sinc * rotvec], axis=-1)
+
+
+def to_rotvec(q: ArrayLike) -> NDArray[np.float64]:
+    """Rotation vector (angle in [0, pi] times axis) of ``q``; ``q`` and ``-q`` agree."""
+    q = np.asarray(q, dtype=float)
+    q = np.where(q[..., :1] < 0, -q, q)
+    vec_norm = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
+    angle = 2.0 * np.arctan2(vec_norm, q[..., :1])
+    small = vec_norm < 1e-8
+    scale = np.where(small, 2.0 / np.where(small, q[..., :1], 1.0), angle / np.where(small, 1.0, vec_norm))
+    return scale * q[..., 1:]
+
+
+def power(q: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
+    """``q**c``: the rotation about the same axis by ``c`` times the angle (unscented paper, sec. II)."""
+    return from_rotvec(np.asarray(c, dtype=float)[..., None] * to_rotvec(q))
+
+
+def angular_distance(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
+    """Rotation angle in radians between the orientations ``p`` and ``q``.
+
+    Antipodal-aware (unscented paper, eq. 4): ``q`` and ``-q`` are the same
+    orientation, so the result is ``2 acos(|<p, q>|)`` in [0, pi]. Computed
+    with ``atan2`` for accuracy at small angles.
+    """
+    p = np.asarray(p, dtype=float)
+    q = np.asarray(q, dtype=float)
+    d = multiply(conjugate(p), q)
+    return 2.0 * np.arctan2(np.linalg.norm(d[..., 1:], axis=-1), np.abs(d[..., 0]))
