@@ -1,0 +1,185 @@
+"""MAVLink bytes to samples: ATTITUDE, ATTITUDE_QUATERNION, HIGHRES_IMU, SCALED_IMU/2/3, RAW_IMU.
+
+Unit scaling, as the message definitions document it:
+
+==================  ======================  ==========================  ============
+message             time                    gyro / accel                mag
+==================  ======================  ==========================  ============
+HIGHRES_IMU         time_usec (us)          rad/s, m/s^2                gauss
+SCALED_IMU[2,3]     time_boot_ms (uint32)   mrad/s, mG (g=9.80665)      mgauss
+RAW_IMU             time_usec (us)          mrad/s, mG (as ArduPilot)   mgauss
+ATTITUDE            time_boot_ms (uint32)   roll/pitch/yaw rad (3-2-1)  -
+ATTITUDE_QUATERNION time_boot_ms (uint32)   q1..q4 = w, x, y, z         -
+==================  ======================  ==========================  ============
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+from typing import Any, Callable
+
+from .decoder import Decoder
+from .euler import quaternion_from_euler
+from .samples import AttitudeSample, ImuSample, Sample, Vec3
+from .timebase import NS_PER_US, StreamClock
+from .validation import (
+    ACCEL_MAX_M_S2,
+    GYRO_MAX_RAD_S,
+    MAG_MAX_GAUSS,
+    Rejected,
+    check_quaternion,
+    check_vector,
+)
+
+log = logging.getLogger(__name__)
+
+STANDARD_GRAVITY = 9.80665
+MG_TO_M_S2 = STANDARD_GRAVITY / 1000.0
+MILLI = 1e-3
+HIGHRES_MAG_BITS = 0x1C0
+"""HIGHRES_IMU ``fields_updated`` bits 6-8: the magnetometer axes are new in this message."""
+SCALED_IMU_INSTANCE = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+_ANGLE_LIMIT = 7.0  # radians; MAVLink Euler angles are within +-pi
+
+
+def dialect_module(dialect: str) -> Any:
+    """The MAVLink 2 pymavlink module of ``dialect`` (it parses MAVLink 1 frames too)."""
+    return importlib.import_module(f"pymavlink.dialects.v20.{dialect}")
+
+
+def _bad_data_reason(text: str) -> str:
+    if text == "Bad prefix":
+        return "garbage"
+    if text.startswith("invalid MAVLink CRC"):
+        return "bad_crc"
+    return "bad_frame"
+
+
+class MavlinkDecoder(Decoder):
+    """Decode MAVLink bytes (``feed``) or parsed messages (``decode_message``) into samples.
+
+    ``system``/``component`` keep only messages from that sender (None: all).
+    ``parser`` is the pymavlink ``MAVLink`` object that frames the bytes (a
+    connection's ``.mav`` when the bytes come through ``mavutil``); it is set
+    to robust parsing. After a frame fails (bad CRC, bad header) or turns out
+    to be an unknown message, the decoder hands the parser every byte of it
+    but the first again, so a valid packet swallowed by a false header found
+    in garbage is still decoded.
+    """
+
+    def __init__(
+        self,
+        system: int | None = None,
+        component: int | None = None,
+        dialect: str = "common",
+        parser: Any = None,
+        **decoder_options: Any,
+    ) -> None:
+        super().__init__("mavlink", log, **decoder_options)
+        mod = dialect_module(dialect)
+        self.parser = parser if parser is not None else mod.MAVLink(None)
+        self.parser.robust_parsing = True
+        self._system = system
+        self._component = component
+        self._bad_data = mod.MAVLink_bad_data
+        self._unknown = mod.MAVLink_unknown
+        self._handlers: dict[type, Callable[[Any], Sample]] = {
+            mod.MAVLink_attitude_message: self._attitude,
+            mod.MAVLink_attitude_quaternion_message: self._attitude_quaternion,
+            mod.MAVLink_highres_imu_message: self._highres_imu,
+            mod.MAVLink_raw_imu_message: self._raw_imu,
+        }
+        for name in SCALED_IMU_INSTANCE:
+            self._handlers[getattr(mod, f"MAVLink_{name.lower()}_message")] = self._scaled_imu
+
+    def feed(self, data: bytes) -> list[Sample]:
+        """Parse ``data`` (any split of a byte stream) and return the samples completed by it."""
+        samples = []
+        parser = self.parser
+        msg = parser.parse_char(data)
+        while msg is not None:
+            sample = self.decode_message(msg)
+            if sample is not None:
+                samples.append(sample)
+            msg = parser.parse_char(b"")
+        return samples
+
+    def decode_message(self, msg: Any) -> Sample | None:
+        """Sample of one parsed pymavlink message, or None (refusals are counted in ``stats``)."""
+        handler = self._handlers.get(type(msg))
+        if handler is None:
+            self._not_decoded(msg)
+            return None
+        if (self._system is not None and msg.get_srcSystem() != self._system) or (
+            self._component is not None and msg.get_srcComponent() != self._component
+        ):
+            self.stats["other_sender"] += 1
+            return None
+        try:
+            sample = handler(msg)
+        except Rejected as rejected:
+            self._note(rejected.reason, f"{msg.get_type()}: {rejected.detail}")
+            return None
+        self.stats["accepted"] += 1
+        return sample
+
+    def _not_decoded(self, msg: Any) -> None:
+        kind = type(msg)
+        if kind is self._bad_data:
+            reason = _bad_data_reason(msg.reason)
+            self._note(reason, msg.reason)
+            if reason != "garbage":
+                self._rescan(msg.data)
+        elif kind is self._unknown:
+            self._note("unknown_message", msg.get_type())
+            self._rescan(msg.data)
+        else:
+            self.stats["ignored"] += 1
+
+    def _rescan(self, frame: bytes) -> None:
+        """Put back all bytes of a refused frame but its first in front of the parser's buffer."""
+        parser = self.parser
+        parser.buf = bytearray(frame[1:]) + parser.buf[parser.buf_index :]
+        parser.buf_index = 0
+
+    def _imu(self, msg: Any, t_ns: int, instance: int, gyro: Vec3, accel: Vec3, mag: Vec3 | None) -> ImuSample:
+        check_vector("gyro", gyro, GYRO_MAX_RAD_S)
+        check_vector("accel", accel, ACCEL_MAX_M_S2)
+        if mag is not None:
+            check_vector("mag", mag, MAG_MAX_GAUSS)
+        return ImuSample(t_ns, gyro, accel, mag, self._source(msg.get_srcSystem(), msg.get_srcComponent(), instance))
+
+    def _stream_clock(self, msg: Any, instance: int = 0) -> StreamClock:
+        return self._clock((type(msg), msg.get_srcSystem(), msg.get_srcComponent(), instance))
+
+    def _highres_imu(self, m: Any) -> ImuSample:
+        mag = (m.xmag, m.ymag, m.zmag) if m.fields_updated & HIGHRES_MAG_BITS else None
+        t_ns = self._stream_clock(m, m.id).stamp(m.time_usec * NS_PER_US)
+        return self._imu(m, t_ns, m.id, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), mag)
+
+    def _milli_imu(self, m: Any, t_ns: int, instance: int) -> ImuSample:
+        """IMU sample from the integer mrad/s, mG, mgauss fields of SCALED_IMU* and RAW_IMU."""
+        mag = None
+        if m.xmag or m.ymag or m.zmag:  # all zero: no magnetometer behind this IMU
+            mag = (m.xmag * MILLI, m.ymag * MILLI, m.zmag * MILLI)
+        gyro = (m.xgyro * MILLI, m.ygyro * MILLI, m.zgyro * MILLI)
+        accel = (m.xacc * MG_TO_M_S2, m.yacc * MG_TO_M_S2, m.zacc * MG_TO_M_S2)
+        return self._imu(m, t_ns, instance, gyro, accel, mag)
+
+    def _scaled_imu(self, m: Any) -> ImuSample:
+        instance = SCALED_IMU_INSTANCE[m.get_type()]
+        return self._milli_imu(m, self._stream_clock(m, instance).stamp_ms_u32(m.time_boot_ms), instance)
+
+    def _raw_imu(self, m: Any) -> ImuSample:
+        return self._milli_imu(m, self._stream_clock(m, m.id).stamp(m.time_usec * NS_PER_US), m.id)
+
+    def _attitude(self, m: Any) -> AttitudeSample:
+        roll, pitch, yaw = check_vector("euler", (m.roll, m.pitch, m.yaw), _ANGLE_LIMIT)
+        t_ns = self._stream_clock(m).stamp_ms_u32(m.time_boot_ms)
+        return AttitudeSample(t_ns, quaternion_from_euler(roll, pitch, yaw), self._source(m.get_srcSystem(), m.get_srcComponent(), 0))
+
+    def _attitude_quaternion(self, m: Any) -> AttitudeSample:
+        q = check_quaternion((m.q1, m.q2, m.q3, m.q4))
+        t_ns = self._stream_clock(m).stamp_ms_u32(m.time_boot_ms)
+        return AttitudeSample(t_ns, q, self._source(m.get_srcSystem(), m.get_srcComponent(), 0))

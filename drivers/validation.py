@@ -1,0 +1,55 @@
+"""Plausibility limits for decoded values and the rejection they raise.
+
+The checks are written for the hot path: one chained comparison per vector
+(NaN fails every comparison), with the precise reason worked out only once a
+value has already failed.
+"""
+
+from __future__ import annotations
+
+import math
+
+from .samples import Quat, Vec3
+
+GYRO_MAX_RAD_S = 35.0
+"""Per axis; 2000 deg/s full scale is 34.9 rad/s."""
+ACCEL_MAX_M_S2 = 160.0
+"""Per axis; 16 g full scale is 157 m/s^2."""
+MAG_MAX_GAUSS = 10.0
+"""Per axis; the Earth's field is below 0.7 gauss."""
+QUAT_NORM_TOL = 0.05
+"""Largest accepted | |q| - 1 |; accepted quaternions are renormalised."""
+
+
+class Rejected(Exception):
+    """A message was refused; ``reason`` is the key counted in a driver's ``stats``."""
+
+    def __init__(self, reason: str, detail: str = "") -> None:
+        super().__init__(reason, detail)
+        self.reason = reason
+        self.detail = detail
+
+
+def _fail(kind: str, values: tuple[float, ...]) -> Rejected:
+    if not all(math.isfinite(v) for v in values):
+        return Rejected("non_finite", f"{kind} {values}")
+    return Rejected(f"{kind}_out_of_range", f"{kind} {values}")
+
+
+def check_vector(kind: str, v: Vec3, limit: float) -> Vec3:
+    """Return ``v`` if every component is finite and within +-limit, else raise ``Rejected``."""
+    x, y, z = v
+    if -limit <= x <= limit and -limit <= y <= limit and -limit <= z <= limit:
+        return v
+    raise _fail(kind, v)
+
+
+def check_quaternion(q: Quat) -> Quat:
+    """Return ``q`` scaled to unit norm if its norm is within QUAT_NORM_TOL of one, else raise."""
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    if abs(n - 1.0) <= QUAT_NORM_TOL:
+        return (w / n, x / n, y / n, z / n)
+    if not all(math.isfinite(c) for c in q):
+        raise Rejected("non_finite", f"quaternion {q}")
+    raise Rejected("quaternion_norm", f"norm {n:.6g} of {q}")
