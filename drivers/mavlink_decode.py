@@ -143,36 +143,37 @@ class MavlinkDecoder(Decoder):
         parser.buf = bytearray(frame[1:]) + parser.buf[parser.buf_index :]
         parser.buf_index = 0
 
-    def _imu(self, msg: Any, t_ns: int, instance: int, gyro: Vec3, accel: Vec3, mag: Vec3 | None) -> ImuSample:
+    def _stream_clock(self, msg: Any, instance: int = 0) -> StreamClock:
+        return self._clock((type(msg), msg.get_srcSystem(), msg.get_srcComponent(), instance))
+
+    def _imu(self, m: Any, instance: int, gyro: Vec3, accel: Vec3, mag: Vec3 | None, time_usec: int | None) -> ImuSample:
+        """Validated sample; stamped by ``time_usec``, or by ``time_boot_ms`` when that is None."""
         check_vector("gyro", gyro, GYRO_MAX_RAD_S)
         check_vector("accel", accel, ACCEL_MAX_M_S2)
         if mag is not None:
             check_vector("mag", mag, MAG_MAX_GAUSS)
-        return ImuSample(t_ns, gyro, accel, mag, self._source(msg.get_srcSystem(), msg.get_srcComponent(), instance))
-
-    def _stream_clock(self, msg: Any, instance: int = 0) -> StreamClock:
-        return self._clock((type(msg), msg.get_srcSystem(), msg.get_srcComponent(), instance))
+        clock = self._stream_clock(m, instance)
+        t_ns = clock.stamp_ms_u32(m.time_boot_ms) if time_usec is None else clock.stamp(time_usec * NS_PER_US)
+        return ImuSample(t_ns, gyro, accel, mag, self._source(m.get_srcSystem(), m.get_srcComponent(), instance))
 
     def _highres_imu(self, m: Any) -> ImuSample:
         mag = (m.xmag, m.ymag, m.zmag) if m.fields_updated & HIGHRES_MAG_BITS else None
-        t_ns = self._stream_clock(m, m.id).stamp(m.time_usec * NS_PER_US)
-        return self._imu(m, t_ns, m.id, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), mag)
+        return self._imu(m, m.id, (m.xgyro, m.ygyro, m.zgyro), (m.xacc, m.yacc, m.zacc), mag, m.time_usec)
 
-    def _milli_imu(self, m: Any, t_ns: int, instance: int) -> ImuSample:
+    def _milli_imu(self, m: Any, instance: int, time_usec: int | None) -> ImuSample:
         """IMU sample from the integer mrad/s, mG, mgauss fields of SCALED_IMU* and RAW_IMU."""
         mag = None
         if m.xmag or m.ymag or m.zmag:  # all zero: no magnetometer behind this IMU
             mag = (m.xmag * MILLI, m.ymag * MILLI, m.zmag * MILLI)
         gyro = (m.xgyro * MILLI, m.ygyro * MILLI, m.zgyro * MILLI)
         accel = (m.xacc * MG_TO_M_S2, m.yacc * MG_TO_M_S2, m.zacc * MG_TO_M_S2)
-        return self._imu(m, t_ns, instance, gyro, accel, mag)
+        return self._imu(m, instance, gyro, accel, mag, time_usec)
 
     def _scaled_imu(self, m: Any) -> ImuSample:
-        instance = SCALED_IMU_INSTANCE[m.get_type()]
-        return self._milli_imu(m, self._stream_clock(m, instance).stamp_ms_u32(m.time_boot_ms), instance)
+        return self._milli_imu(m, SCALED_IMU_INSTANCE[m.get_type()], None)
 
     def _raw_imu(self, m: Any) -> ImuSample:
-        return self._milli_imu(m, self._stream_clock(m, m.id).stamp(m.time_usec * NS_PER_US), m.id)
+        return self._milli_imu(m, m.id, m.time_usec)
 
     def _attitude(self, m: Any) -> AttitudeSample:
         roll, pitch, yaw = check_vector("euler", (m.roll, m.pitch, m.yaw), _ANGLE_LIMIT)
