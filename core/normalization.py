@@ -90,7 +90,11 @@ def moments_jacobian(z: ArrayLike, method: Method = "saddlepoint") -> tuple[NDAr
     """Moments ``m = moments(z)`` and their Jacobian ``dm_i / dz_j``.
 
     ``"saddlepoint"``: from the second derivatives ``d2N/dz_i dz_j`` by the
-    general dimension-raising identity (saddlepoint paper, eq. 4).
+    general dimension-raising identity (saddlepoint paper, eq. 4). Those
+    approximations do not satisfy ``sum_j d2N/dz_i dz_j = dN/dz_i`` exactly,
+    so the last column is set from the shift identity (eq. 3: the moments do
+    not change when every ``z_j`` moves together); rows and columns then sum
+    to zero like the exact Jacobian's.
     ``"exact"`` (n = 4): ``E[x_i^2 x_j^2] - E[x_i^2] E[x_j^2]`` by quadrature.
     """
     arr = _as_z(z)
@@ -101,7 +105,9 @@ def moments_jacobian(z: ArrayLike, method: Method = "saddlepoint") -> tuple[NDAr
     _, g, h = saddlepoint.derivatives(arr, 2)
     dg = h - np.outer(g, g)  # d(N_i/N)/dz_j
     total = g.sum()
-    return g / total, dg / total - np.outer(g, dg.sum(axis=0)) / total**2
+    jac = dg / total - np.outer(g, dg.sum(axis=0)) / total**2
+    jac[:, -1] = -jac[:, :-1].sum(axis=1)
+    return g / total, jac
 
 
 def _initial_z(target: NDArray) -> NDArray:
