@@ -1,4 +1,4 @@
-"""State shared by the protocol decoders: stats, per-stream clocks, interned source ids."""
+"""State shared by the protocol decoders: stats and, per stream, a clock and a source id."""
 
 from __future__ import annotations
 
@@ -19,18 +19,13 @@ class Decoder:
         self._note = ReasonLog(self.stats, logger)
         self._transport = transport
         self._max_gap_ns = max_gap_ns
-        self._clocks: dict[Hashable, StreamClock] = {}
-        self._sources: dict[tuple[int, int, int], SourceId] = {}
+        self._streams: dict[tuple[Hashable, int, int, int], tuple[StreamClock, SourceId]] = {}
 
-    def _clock(self, stream: Hashable) -> StreamClock:
-        clock = self._clocks.get(stream)
-        if clock is None:
-            clock = self._clocks[stream] = StreamClock(self._note, self._max_gap_ns)
-        return clock
-
-    def _source(self, system: int, component: int, instance: int) -> SourceId:
-        key = (system, component, instance)
-        source = self._sources.get(key)
-        if source is None:
-            source = self._sources[key] = SourceId(self._transport, system, component, instance)
-        return source
+    def _stream(self, kind: Hashable, system: int, component: int, instance: int) -> tuple[StreamClock, SourceId]:
+        """Clock and source id of one stream: a message kind from one sender's sensor instance."""
+        key = (kind, system, component, instance)
+        stream = self._streams.get(key)
+        if stream is None:
+            source = SourceId(self._transport, system, component, instance)
+            stream = self._streams[key] = (StreamClock(self._note, self._max_gap_ns), source)
+        return stream

@@ -154,32 +154,30 @@ class DroneCanDecoder(Decoder):
             self._note("incomplete_transfer", "too many unfinished transfers")
         partials[can_id] = partial
 
-    def _sender_time(self, node: int, kind: str, instance: int, usec: int, t_rx: float) -> int:
-        """Monotonic time of a transfer stamped ``usec`` on the bus time base."""
+    def _stamp(self, node: int, kind: str, instance: int, usec: int, t_rx: float) -> tuple[int, SourceId]:
+        """Monotonic time of a transfer stamped ``usec`` on the bus time base (0: none), and its source."""
         rx_ns = round(t_rx * 1e9)
         if usec:
             sender_ns = usec * NS_PER_US
             self._rx_to_sender_ns = sender_ns - rx_ns
         else:  # no timestamp in the message (or 0, "unknown"): receive time on the bus time base
             sender_ns = rx_ns + (self._rx_to_sender_ns or 0)
-        return self._clock((kind, node, instance)).stamp(sender_ns)
-
-    def _node(self, node: int, instance: int) -> SourceId:
-        return self._source(node, 0, instance)
+        clock, source = self._stream(kind, node, 0, instance)
+        return clock.stamp(sender_ns), source
 
     def _raw_imu(self, m: Any, node: int, t_rx: float) -> ImuSample:
         gyro = check_vector("gyro", tuple(m.rate_gyro_latest), GYRO_MAX_RAD_S)
         accel = check_vector("accel", tuple(m.accelerometer_latest), ACCEL_MAX_M_S2)
-        t_ns = self._sender_time(node, RAW_IMU, 0, m.timestamp.usec, t_rx)
-        return ImuSample(t_ns, gyro, accel, None, self._node(node, 0))  # type: ignore[arg-type]
+        t_ns, source = self._stamp(node, RAW_IMU, 0, m.timestamp.usec, t_rx)
+        return ImuSample(t_ns, gyro, accel, None, source)  # type: ignore[arg-type]
 
     def _mag(self, m: Any, node: int, t_rx: float) -> MagSample:
         mag = check_vector("mag", tuple(m.magnetic_field_ga), MAG_MAX_GAUSS)
-        t_ns = self._sender_time(node, MAG_FIELD, m.sensor_id, 0, t_rx)
-        return MagSample(t_ns, mag, self._node(node, m.sensor_id))  # type: ignore[arg-type]
+        t_ns, source = self._stamp(node, MAG_FIELD, m.sensor_id, 0, t_rx)
+        return MagSample(t_ns, mag, source)  # type: ignore[arg-type]
 
     def _solution(self, m: Any, node: int, t_rx: float) -> AttitudeSample:
         x, y, z, w = m.orientation_xyzw
         q = check_quaternion((w, x, y, z))
-        t_ns = self._sender_time(node, SOLUTION, 0, m.timestamp.usec, t_rx)
-        return AttitudeSample(t_ns, q, self._node(node, 0))
+        t_ns, source = self._stamp(node, SOLUTION, 0, m.timestamp.usec, t_rx)
+        return AttitudeSample(t_ns, q, source)

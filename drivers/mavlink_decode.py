@@ -21,7 +21,7 @@ from typing import Any, Callable
 
 from .decoder import Decoder
 from .euler import quaternion_from_euler
-from .samples import AttitudeSample, ImuSample, Sample, Vec3
+from .samples import AttitudeSample, ImuSample, Sample, SourceId, Vec3
 from .timebase import NS_PER_US, StreamClock
 from .validation import (
     ACCEL_MAX_M_S2,
@@ -143,8 +143,8 @@ class MavlinkDecoder(Decoder):
         parser.buf = bytearray(frame[1:]) + parser.buf[parser.buf_index :]
         parser.buf_index = 0
 
-    def _stream_clock(self, msg: Any, instance: int = 0) -> StreamClock:
-        return self._clock((type(msg), msg.get_srcSystem(), msg.get_srcComponent(), instance))
+    def _stream_of(self, msg: Any, instance: int = 0) -> tuple[StreamClock, SourceId]:
+        return self._stream(type(msg), msg.get_srcSystem(), msg.get_srcComponent(), instance)
 
     def _imu(self, m: Any, instance: int, gyro: Vec3, accel: Vec3, mag: Vec3 | None, time_usec: int | None) -> ImuSample:
         """Validated sample; stamped by ``time_usec``, or by ``time_boot_ms`` when that is None."""
@@ -152,9 +152,9 @@ class MavlinkDecoder(Decoder):
         check_vector("accel", accel, ACCEL_MAX_M_S2)
         if mag is not None:
             check_vector("mag", mag, MAG_MAX_GAUSS)
-        clock = self._stream_clock(m, instance)
+        clock, source = self._stream_of(m, instance)
         t_ns = clock.stamp_ms_u32(m.time_boot_ms) if time_usec is None else clock.stamp(time_usec * NS_PER_US)
-        return ImuSample(t_ns, gyro, accel, mag, self._source(m.get_srcSystem(), m.get_srcComponent(), instance))
+        return ImuSample(t_ns, gyro, accel, mag, source)
 
     def _highres_imu(self, m: Any) -> ImuSample:
         mag = (m.xmag, m.ymag, m.zmag) if m.fields_updated & HIGHRES_MAG_BITS else None
@@ -177,10 +177,10 @@ class MavlinkDecoder(Decoder):
 
     def _attitude(self, m: Any) -> AttitudeSample:
         roll, pitch, yaw = check_vector("euler", (m.roll, m.pitch, m.yaw), _ANGLE_LIMIT)
-        t_ns = self._stream_clock(m).stamp_ms_u32(m.time_boot_ms)
-        return AttitudeSample(t_ns, quaternion_from_euler(roll, pitch, yaw), self._source(m.get_srcSystem(), m.get_srcComponent(), 0))
+        clock, source = self._stream_of(m)
+        return AttitudeSample(clock.stamp_ms_u32(m.time_boot_ms), quaternion_from_euler(roll, pitch, yaw), source)
 
     def _attitude_quaternion(self, m: Any) -> AttitudeSample:
         q = check_quaternion((m.q1, m.q2, m.q3, m.q4))
-        t_ns = self._stream_clock(m).stamp_ms_u32(m.time_boot_ms)
-        return AttitudeSample(t_ns, q, self._source(m.get_srcSystem(), m.get_srcComponent(), 0))
+        clock, source = self._stream_of(m)
+        return AttitudeSample(clock.stamp_ms_u32(m.time_boot_ms), q, source)
