@@ -38,6 +38,8 @@ def _hamilton_tensor() -> NDArray[np.float64]:
 
 
 _HAMILTON = _hamilton_tensor()
+# K[a, c, j, l, k, m] = T[a, j, k] T[c, l, m], flattened to (16, 16, 16) for two mat-vecs.
+_COMPOSITION = np.einsum("ajk,clm->acjlkm", _HAMILTON, _HAMILTON).reshape(16, 16, 16)
 
 
 def composition_inertia(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
@@ -50,9 +52,7 @@ def composition_inertia(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     q_3 r_3 - q_4 r_4`` needs ``diag(1, -1, -1, -1)``); every entry is checked
     against Monte Carlo composition in the tests.
     """
-    left = np.tensordot(_HAMILTON, np.asarray(a, dtype=float), axes=([1], [0]))  # (a, k, l)
-    right = np.tensordot(_HAMILTON, np.asarray(b, dtype=float), axes=([2], [0]))  # (c, l, m)
-    return np.einsum("akl,clk->ac", left, right)
+    return ((_COMPOSITION @ np.ravel(b)) @ np.ravel(a)).reshape(4, 4)
 
 
 def _check_inertia(S: ArrayLike) -> NDArray[np.float64]:
@@ -82,12 +82,24 @@ class Bingham:
             raise ValueError(f"Z must be sorted ascending (mode last), got {Z}")
         if np.max(np.abs(M.T @ M - np.eye(4))) > _ORTHO_TOL:
             raise ValueError("M must be orthogonal")
-        M.setflags(write=False)
+        self._set(M, Z)
+
+    def _set(self, M: NDArray, Z: NDArray) -> None:
         Z = Z - Z[-1]  # eq. (3): Bingham(M, Z) = Bingham(M, Z + cI)
+        M.setflags(write=False)
         Z.setflags(write=False)
         self._M = M
         self._Z = Z
         self._cache: dict[tuple[str, str], object] = {}
+
+    @classmethod
+    def _trusted(cls, M: NDArray, Z: NDArray) -> Bingham:
+        """Construct without validation, for results of this class's own operations
+        (eigenvectors from ``eigh``, products of orthogonal matrices), which hold
+        the invariants by construction; the checks cost more than the operations."""
+        obj = cls.__new__(cls)
+        obj._set(M, Z)
+        return obj
 
     # -- constructors ---------------------------------------------------------
     @classmethod
@@ -124,7 +136,7 @@ class Bingham:
         if evals[0] < -_INERTIA_TOL:
             raise ValueError(f"inertia matrix is not positive semidefinite (eigenvalue {evals[0]:.3g})")
         evals = np.clip(evals, 0.0, None)
-        return cls(evecs, fit_dispersion(evals / evals.sum(), method))
+        return cls._trusted(evecs, fit_dispersion(evals / evals.sum(), method))
 
     @classmethod
     def from_samples(cls, x: ArrayLike, weights: ArrayLike | None = None, method: Method = "saddlepoint") -> Bingham:
@@ -208,19 +220,19 @@ class Bingham:
     def product(self, other: Bingham) -> Bingham:
         """Normalized product of the two densities (QBF paper, sec. 5, eq. 3): exponents add."""
         evals, evecs = np.linalg.eigh(self.C + other.C)
-        return Bingham(evecs, evals)
+        return Bingham._trusted(evecs, evals)
 
     def rotate_left(self, u: ArrayLike) -> Bingham:
         """Distribution of ``u (x) x`` (QBF paper, sec. 5): ``M -> L(u) M``."""
-        return Bingham(quat.left_matrix(quat.as_quaternion(u)) @ self._M, self._Z)
+        return Bingham._trusted(quat.left_matrix(quat.as_quaternion(u)) @ self._M, self._Z)
 
     def rotate_right(self, u: ArrayLike) -> Bingham:
         """Distribution of ``x (x) u`` (QBF paper, sec. 5): ``M -> R(u) M``."""
-        return Bingham(quat.right_matrix(quat.as_quaternion(u)) @ self._M, self._Z)
+        return Bingham._trusted(quat.right_matrix(quat.as_quaternion(u)) @ self._M, self._Z)
 
     def inverse(self) -> Bingham:
         """Distribution of ``x^-1`` (QBF paper, sec. 5): ``M -> J M``."""
-        return Bingham(_CONJUGATE @ self._M, self._Z)
+        return Bingham._trusted(_CONJUGATE @ self._M, self._Z)
 
     def compose(self, other: Bingham, method: Method = "saddlepoint") -> Bingham:
         """Moment-matched distribution of ``self (x) other`` for independent factors (QBF paper, A.9)."""

@@ -49,7 +49,7 @@ def identity_likelihood(z: ArrayLike, noise: Bingham) -> Bingham:
     ``x^T (J R(z)^T M_v) Z_v (J R(z)^T M_v)^T x`` (unscented paper, sec. IV-B).
     """
     zq = quat.as_quaternion(z)
-    return Bingham(_CONJUGATE @ quat.right_matrix(zq).T @ noise.M, noise.Z)
+    return Bingham._trusted(_CONJUGATE @ quat.right_matrix(zq).T @ noise.M, noise.Z)
 
 
 class BinghamFilter:

@@ -96,18 +96,20 @@ def inverse(q: ArrayLike) -> NDArray[np.float64]:
     return conjugate(arr) / np.sum(arr * arr, axis=-1, keepdims=True)
 
 
+# L(q)[i, j] = sign * q[index]: built by one gather, for any leading shape.
+_LEFT_INDEX = np.array([[0, 1, 2, 3], [1, 0, 3, 2], [2, 3, 0, 1], [3, 2, 1, 0]])
+_LEFT_SIGN = np.array([[1.0, -1, -1, -1], [1, 1, -1, 1], [1, 1, 1, -1], [1, -1, 1, 1]])
+_RIGHT_SIGN = np.array([[1.0, -1, -1, -1], [1, 1, 1, -1], [1, -1, 1, 1], [1, 1, -1, 1]])
+
+
 def left_matrix(q: ArrayLike) -> NDArray[np.float64]:
     """Matrix ``L(q)`` with ``L(q) p == multiply(q, p)``."""
-    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
-    rows = [[w, -x, -y, -z], [x, w, -z, y], [y, z, w, -x], [z, -y, x, w]]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    return np.asarray(q, dtype=float)[..., _LEFT_INDEX] * _LEFT_SIGN
 
 
 def right_matrix(q: ArrayLike) -> NDArray[np.float64]:
     """Matrix ``R(q)`` with ``R(q) p == multiply(p, q)``."""
-    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
-    rows = [[w, -x, -y, -z], [x, w, z, -y], [y, -z, w, x], [z, y, -x, w]]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    return np.asarray(q, dtype=float)[..., _LEFT_INDEX] * _RIGHT_SIGN
 
 
 def rotate(q: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:

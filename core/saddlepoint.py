@@ -65,13 +65,13 @@ def _solve_u(delta: np.ndarray, mult: np.ndarray) -> float:
     over the sets ``S`` of the smallest deltas.
     """
     n = delta.shape[0]
-    order = np.argsort(delta)
     u = 0.5
-    acc = 0.0
-    for k in range(n):
-        i = order[k]
-        acc += mult[i]
-        cand = 0.5 * acc - delta[i]
+    for k in range(n):  # S = entries with delta <= delta[k]; n is small, so O(n^2) is fine
+        acc = 0.0
+        for i in range(n):
+            if delta[i] <= delta[k]:
+                acc += mult[i]
+        cand = 0.5 * acc - delta[k]
         if cand > u:
             u = cand
     for _ in range(100):
@@ -170,22 +170,79 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
     """Residual ``log m(z) - log target`` over ``z_1..z_(n-1)`` and, if asked, its Jacobian.
 
     ``m_i = N_i / sum_k N_k`` are the moments of :func:`derivatives`; the
-    Jacobian comes from the second derivatives (eq. 4).
+    Jacobian comes from the second derivatives (eq. 4):
+    ``d log m_i / dz_j = (H_ij - g_i g_j) / g_i - sum_k (H_kj - g_k g_j) / G``.
     """
     n = z.shape[0]
     _, g, h = derivatives(z, 2 if with_jacobian else 1)
-    total = g.sum()
+    total = 0.0
+    for i in range(n):
+        total += g[i]
     res = np.empty(n - 1)
     for i in range(n - 1):
         res[i] = math.log(g[i] / total) - log_target[i]
     jac = np.empty((n - 1, n - 1))
     if with_jacobian:
-        dg = h - np.outer(g, g)
-        col = dg.sum(axis=0)
-        for i in range(n - 1):
-            for j in range(n - 1):
-                jac[i, j] = dg[i, j] / g[i] - col[j] / total
+        for j in range(n - 1):
+            col = 0.0
+            for k in range(n):
+                col += h[k, j] - g[k] * g[j]
+            for i in range(n - 1):
+                jac[i, j] = (h[i, j] - g[i] * g[j]) / g[i] - col / total
     return res, jac
+
+
+@njit(cache=True, nogil=True)
+def _sum_squares(v: np.ndarray) -> float:
+    s = 0.0
+    for x in v:
+        s += x * x
+    return s
+
+
+@njit(cache=True, nogil=True)
+def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
+    """``-(J^T J + mu I)^-1 J^T r`` by Cholesky; ``mu`` is 1e-12 of the trace.
+
+    The paper's pseudo-inverse step, damped just enough to stay defined if
+    ``J`` is singular; written out because the system is at most a few
+    unknowns and LAPACK's numba bindings cost seconds of compilation.
+    """
+    k = res.shape[0]
+    a = np.zeros((k, k))
+    b = np.zeros(k)
+    for i in range(k):
+        for j in range(k):
+            for r in range(k):
+                a[i, j] += jac[r, i] * jac[r, j]
+        for r in range(k):
+            b[i] -= jac[r, i] * res[r]
+    trace = 0.0
+    for i in range(k):
+        trace += a[i, i]
+    for i in range(k):
+        a[i, i] += 1e-12 * trace + 1e-300
+    for j in range(k):  # in-place Cholesky, lower triangle
+        s = a[j, j]
+        for p in range(j):
+            s -= a[j, p] * a[j, p]
+        a[j, j] = math.sqrt(max(s, 1e-300))
+        for i in range(j + 1, k):
+            s = a[i, j]
+            for p in range(j):
+                s -= a[i, p] * a[j, p]
+            a[i, j] = s / a[j, j]
+    for i in range(k):  # forward then backward substitution
+        s = b[i]
+        for p in range(i):
+            s -= a[i, p] * b[p]
+        b[i] = s / a[i, i]
+    for i in range(k - 1, -1, -1):
+        s = b[i]
+        for p in range(i + 1, k):
+            s -= a[p, i] * b[p]
+        b[i] = s / a[i, i]
+    return b
 
 
 @njit(cache=True, nogil=True)
@@ -199,21 +256,22 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
     is large (a chord method), which halves the cost. Steps that would
     increase the residual are halved; ``z`` stays <= 0.
     """
+    n = z0.shape[0]
     z = z0.copy()
     res, jac = _log_moment_residual(z, log_target, True)
-    cost = np.dot(res, res)
+    cost = _sum_squares(res)
+    trial = z.copy()
     for _ in range(max_iter):
         if cost < tol:
             break
-        step = np.linalg.lstsq(jac, -res)[0]
+        step = _gauss_newton_step(jac, res)
         scale = 1.0
-        trial = z.copy()
         while True:
-            for i in range(z.shape[0] - 1):
+            for i in range(n - 1):
                 trial[i] = min(z[i] + scale * step[i], 0.0)
             fresh = cost > 1e-8
             res_new, jac_new = _log_moment_residual(trial, log_target, fresh)
-            cost_new = np.dot(res_new, res_new)
+            cost_new = _sum_squares(res_new)
             if cost_new <= cost or scale < 1e-4:
                 break
             scale *= 0.5
