@@ -1,0 +1,102 @@
+"""JSON encoding of input samples and estimates, shared by the recorder, replay and zenoh.
+
+JSON because every consumer can read it (Foxglove shows JSON channels with a
+JSON schema; a zenoh subscriber in any language needs nothing but a JSON
+parser), and the messages are small. Encoding is deterministic: keys in a
+fixed order and floats as Python's shortest round-trip repr, so the same
+estimate always gives the same bytes and a replay can be compared byte for
+byte.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
+
+__all__ = ["Estimate", "decode_sample", "dumps", "encode_sample", "sample_channel"]
+
+
+def dumps(obj: Any) -> bytes:
+    """Deterministic compact JSON bytes."""
+    return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+
+
+def _source(s: SourceId) -> dict[str, Any]:
+    return {"transport": s.transport, "system": s.system, "component": s.component, "instance": s.instance}
+
+
+def sample_channel(sample: Sample) -> str:
+    """MCAP topic of a sample type."""
+    return {ImuSample: "/input/imu", MagSample: "/input/mag", AttitudeSample: "/input/attitude"}[type(sample)]
+
+
+def encode_sample(sample: Sample, receive_ns: int) -> dict[str, Any]:
+    """A sample as a JSON-able dict, with the time the fuser received it."""
+    out: dict[str, Any] = {"t_ns": sample.t_ns, "receive_ns": receive_ns, "source": _source(sample.source)}
+    if isinstance(sample, ImuSample):
+        out["gyro_rad_s"] = list(sample.gyro_rad_s)
+        out["accel_m_s2"] = list(sample.accel_m_s2)
+        out["mag_gauss"] = None if sample.mag_gauss is None else list(sample.mag_gauss)
+    elif isinstance(sample, MagSample):
+        out["mag_gauss"] = list(sample.mag_gauss)
+    else:
+        out["q_wxyz"] = list(sample.q_wxyz)
+    return out
+
+
+def decode_sample(topic: str, d: dict[str, Any]) -> tuple[Sample, int]:
+    """Inverse of :func:`encode_sample`: the sample and its receive time."""
+    src = SourceId(**d["source"])
+    vec = lambda key: tuple(float(v) for v in d[key])  # noqa: E731
+    if topic == "/input/imu":
+        mag = None if d.get("mag_gauss") is None else vec("mag_gauss")
+        return ImuSample(int(d["t_ns"]), vec("gyro_rad_s"), vec("accel_m_s2"), mag, src), int(d["receive_ns"])  # type: ignore[arg-type]
+    if topic == "/input/mag":
+        return MagSample(int(d["t_ns"]), vec("mag_gauss"), src), int(d["receive_ns"])  # type: ignore[arg-type]
+    if topic == "/input/attitude":
+        return AttitudeSample(int(d["t_ns"]), vec("q_wxyz"), src), int(d["receive_ns"])  # type: ignore[arg-type]
+    raise ValueError(f"not an input topic: {topic}")
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One fused attitude estimate, stamped with its tick time (ns, the loop's timeline).
+
+    ``q_wxyz`` rotates body FRD into world NED. ``M`` (4x4, row-major) and
+    ``Z`` are the full Bingham posterior; ``uncertainty_deg`` its RMS
+    angular deviation; ``euler_deg`` roll, pitch, yaw (ZYX) for convenience.
+    """
+
+    t_ns: int
+    q_wxyz: tuple[float, float, float, float]
+    M: tuple[tuple[float, ...], ...]
+    Z: tuple[float, float, float, float]
+    uncertainty_deg: float
+    euler_deg: tuple[float, float, float]
+    counters: dict[str, int] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "t_ns": self.t_ns,
+            "q_wxyz": list(self.q_wxyz),
+            "M": [list(r) for r in self.M],
+            "Z": list(self.Z),
+            "uncertainty_deg": self.uncertainty_deg,
+            "euler_deg": list(self.euler_deg),
+            "counters": dict(sorted(self.counters.items())),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> Estimate:
+        return cls(
+            int(d["t_ns"]),
+            tuple(d["q_wxyz"]),  # type: ignore[arg-type]
+            tuple(tuple(r) for r in d["M"]),
+            tuple(d["Z"]),  # type: ignore[arg-type]
+            float(d["uncertainty_deg"]),
+            tuple(d["euler_deg"]),  # type: ignore[arg-type]
+            dict(d.get("counters", {})),
+        )

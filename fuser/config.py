@@ -1,0 +1,87 @@
+"""All tuning and wiring of the fuser in one typed object, read from TOML and overridden by flags."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["FuserConfig", "load_config"]
+
+
+@dataclass(frozen=True)
+class FuserConfig:
+    """Every setting of the fuser; defaults suit a small multirotor with a MEMS IMU.
+
+    Noise figures are one-sigma. Frames: body FRD, world NED.
+    """
+
+    vehicle: str = "sim"
+    """Name used in the zenoh key expressions ``bingham_fuser/<vehicle>/...``."""
+    rate_hz: float = 100.0
+    """Estimates per second (one per tick)."""
+    latency_ms: float = 5.0
+    """How long a tick waits after its due time for samples still in flight."""
+    gyro_noise_rad_s_rt_hz: float = 3e-4
+    """Gyro white-noise density."""
+    gyro_bias_rad_s: float = 0.002
+    """Gyro bias left after estimation, treated as extra process noise."""
+    bias_time_constant_s: float = 10.0
+    """Time constant of the gyro bias estimate (0 disables bias estimation)."""
+    bias_learn_max_rate_rad_s: float = 1.0
+    """The bias is learnt only in ticks rotating slower than this, with a trusted accelerometer."""
+    gyro_scale_error: float = 0.01
+    """Relative gyro scale and misalignment error: process noise proportional to the rotation rate."""
+    gyro_gap_rate_rad_s: float = 1.0
+    """Assumed rotation rate while no gyro data arrives: how fast uncertainty grows in a gap."""
+    max_gyro_dt_s: float = 0.1
+    """Longer gaps between two gyro samples of one IMU are not integrated."""
+    accel_sigma_rad: float = 0.05
+    """Direction noise of the gravity measurement."""
+    accel_gate: float = 0.2
+    """Reject the accelerometer when | |f| - g | / g exceeds this (manoeuvres, impacts)."""
+    accel_inflation: float = 10.0
+    """Below the gate, sigma grows by this factor times the relative norm error."""
+    accel_rate_inflation_s: float = 2.0
+    """Sigma also grows by this factor times the rotation rate (rad/s): turns carry centripetal acceleration."""
+    use_mag: bool = True
+    mag_sigma_rad: float = 0.05
+    """Heading noise of the magnetometer."""
+    mag_field_ned_gauss: tuple[float, float, float] = (0.21, 0.0, 0.43)
+    """Expected earth field (north, east, down): reference for heading, norm and dip gates."""
+    mag_norm_gate: float = 0.25
+    """Reject the magnetometer when its norm departs from the expected one by this fraction."""
+    mag_dip_gate_deg: float = 10.0
+    """Reject the magnetometer when its dip departs from the expected one by this much."""
+    attitude_sigma_deg: float | None = None
+    """If set, autopilot ATTITUDE(_QUATERNION) messages are identity measurements with this noise."""
+    zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    zenoh_connect: tuple[str, ...] = ()
+    record: str | None = None
+    """MCAP file to record inputs and estimates to (None: do not record)."""
+
+    def replace(self, **changes: Any) -> FuserConfig:
+        """A copy with some settings changed (None values are ignored)."""
+        return dataclasses.replace(self, **{k: v for k, v in changes.items() if v is not None})
+
+
+def load_config(path: str | Path | None, **overrides: Any) -> FuserConfig:
+    """Defaults, then the TOML file's ``[fuser]`` table (or top level), then ``overrides``.
+
+    Unknown keys are an error naming the key, so a typo never goes unnoticed.
+    """
+    values: dict[str, Any] = {}
+    if path is not None:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+        values = data.get("fuser", data)
+    known = {f.name: f for f in dataclasses.fields(FuserConfig)}
+    unknown = sorted(set(values) - set(known))
+    if unknown:
+        raise ValueError(f"unknown setting(s) in {path}: {', '.join(unknown)}")
+    for key, value in list(values.items()):
+        if isinstance(value, list):
+            values[key] = tuple(value)
+    return FuserConfig(**values).replace(**overrides)

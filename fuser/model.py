@@ -1,0 +1,192 @@
+"""The fusion model: turns one tick's samples into Bingham filter operations.
+
+Per tick: integrate each IMU's gyro into a rotation ``u`` and predict
+``x_k = x_(k-1) (x) u (x) w`` in closed form (progressive paper, Alg. 1) with
+``w``'s concentration from the gyro noise density and the tick length;
+update with the mean gravity direction (an exact Bingham likelihood,
+:func:`core.observations.vector_likelihood`), the magnetometer's heading
+(yaw-only, :func:`core.observations.heading_likelihood`) and, if
+configured, the autopilot's attitude (identity measurement). The state
+starts uniform: no prior knowledge of the attitude is needed.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+
+import numpy as np
+
+from core import quaternion as quat
+from core.bingham import Bingham
+from core.filters import BinghamFilter, rms_angle_deg
+from core.observations import heading_likelihood, vector_likelihood
+from drivers.euler import euler_from_quaternion
+from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
+from fuser.codec import Estimate
+from fuser.config import FuserConfig
+
+__all__ = ["FusionModel", "GRAVITY_M_S2"]
+
+GRAVITY_M_S2 = 9.80665
+_DOWN = np.array([0.0, 0.0, 1.0])
+_MIN_VARIANCE = 1e-18  # caps the noise concentration at 2e18 for a zero-length tick
+_BIAS_LEARN_MAX_UNCERTAINTY_DEG = 5.0
+_MAX_BIAS = 0.2  # rad/s: beyond any MEMS gyro's bias; stops a wrong start from running away
+
+
+def _rotation_noise(angle_variance: float) -> Bingham:
+    """Isotropic rotation noise whose per-axis angle variance is ``angle_variance`` (rad^2).
+
+    The vector part of a small rotation is half its angle, and a Bingham's
+    ``E[y_i^2] -> 1/(2|z_i|)``, so ``z = -2 / variance``.
+    """
+    z = -2.0 / max(angle_variance, _MIN_VARIANCE)
+    return Bingham.from_mode(quat.IDENTITY, [z, z, z])
+
+
+class FusionModel:
+    """Bingham attitude fusion of any number of IMUs, magnetometers and attitude sources."""
+
+    def __init__(self, config: FuserConfig) -> None:
+        self.config = config
+        self.filter = BinghamFilter(Bingham.uniform())
+        self.counters: Counter[str] = Counter()
+        self._last_gyro_ns: dict[SourceId, int] = {}
+        self._noise_cache: dict[int, Bingham] = {}
+        field = np.asarray(config.mag_field_ned_gauss, dtype=float)
+        self._field_norm = float(np.linalg.norm(field))
+        self._field_dip = math.asin(field[2] / self._field_norm)
+        self._field_heading = math.atan2(field[1], field[0])
+        self._tilt_known = False
+        self.gyro_bias = np.zeros(3)
+        self._rate = 0.0
+        self._accel_trusted = False
+
+    # -- one tick ---------------------------------------------------------------
+    def step(self, samples: list[Sample], dt_ns: int, t_ns: int) -> Estimate:
+        """Fuse the samples of one tick of length ``dt_ns`` ending at ``t_ns``."""
+        imu = [s for s in samples if isinstance(s, ImuSample)]
+        self._accel_trusted = False
+        self._predict(imu, dt_ns)
+        predicted = self.filter.estimate
+        if imu:
+            self._update_gravity(np.mean([s.accel_m_s2 for s in imu], axis=0))
+        mags = [s.mag_gauss for s in samples if isinstance(s, MagSample)] + [s.mag_gauss for s in imu if s.mag_gauss is not None]
+        if mags and self.config.use_mag:
+            self._update_heading(np.mean(mags, axis=0))
+        if self.config.attitude_sigma_deg is not None:
+            for s in samples:
+                if isinstance(s, AttitudeSample):
+                    self._update_attitude(s.q_wxyz)
+        self._learn_bias(predicted)
+        return self._estimate(t_ns)
+
+    def _learn_bias(self, predicted: np.ndarray) -> None:
+        """Integral feedback of the tick's correction into the gyro bias (Mahony-style).
+
+        A bias error ``e`` makes the prediction drift by ``e dt`` per tick, which
+        the updates then correct; feeding ``-correction / tau`` back drives the
+        estimate to the bias with time constant ``tau``. Learnt only when the
+        accelerometer was trusted and the body turned slowly, so manoeuvres do
+        not leak into it. The orientation stays a Bingham; the bias is a point
+        estimate whose residual error is the process noise ``gyro_bias_rad_s``.
+        """
+        cfg = self.config
+        if cfg.bias_time_constant_s <= 0 or not self._accel_trusted or self._rate > cfg.bias_learn_max_rate_rad_s:
+            return
+        if rms_angle_deg(self.filter.state, self.filter.method) > _BIAS_LEARN_MAX_UNCERTAINTY_DEG:
+            return  # still converging from the uniform start: corrections are not drift
+        correction = quat.to_rotvec(quat.multiply(quat.conjugate(predicted), self.filter.estimate))
+        self.gyro_bias = np.clip(self.gyro_bias - correction / cfg.bias_time_constant_s, -_MAX_BIAS, _MAX_BIAS)
+
+    def _predict(self, imu: list[ImuSample], dt_ns: int) -> None:
+        cfg = self.config
+        dt = dt_ns * 1e-9
+        rates = []
+        for source in sorted({s.source for s in imu}, key=repr):
+            rotvec, covered = self._integrate(sorted((s for s in imu if s.source == source), key=lambda s: s.t_ns))
+            if covered > 0.0:
+                rates.append(rotvec / covered - self.gyro_bias)
+        variance = cfg.gyro_noise_rad_s_rt_hz**2 * dt + (cfg.gyro_bias_rad_s * dt) ** 2
+        if rates:
+            rate = np.mean(rates, axis=0)
+            self._rate = float(np.linalg.norm(rate))
+            u = quat.from_rotvec(rate * dt)
+            variance += (cfg.gyro_scale_error * self._rate * dt) ** 2
+        else:
+            u = None
+            variance += (cfg.gyro_gap_rate_rad_s * dt) ** 2
+            self.counters["no_gyro"] += 1
+        self.filter.predict(self._noise(variance), u)
+
+    def _integrate(self, samples: list[ImuSample]) -> tuple[np.ndarray, float]:
+        """Rotation vector and seconds covered by one IMU's gyro samples (rate held over the preceding interval)."""
+        rotvec = np.zeros(3)
+        covered = 0.0
+        for s in samples:
+            last = self._last_gyro_ns.get(s.source)
+            self._last_gyro_ns[s.source] = s.t_ns
+            if last is None:
+                continue
+            dt = (s.t_ns - last) * 1e-9
+            if not 0.0 < dt <= self.config.max_gyro_dt_s:
+                self.counters["gyro_gap"] += 1
+                continue
+            rotvec += np.asarray(s.gyro_rad_s) * dt
+            covered += dt
+        return rotvec, covered
+
+    def _noise(self, variance: float) -> Bingham:
+        key = round(math.log(variance) * 1000)  # ticks repeat their length: reuse the noise and its moments
+        if key not in self._noise_cache:
+            self._noise_cache[key] = _rotation_noise(variance)
+        return self._noise_cache[key]
+
+    def _update_gravity(self, accel: np.ndarray) -> None:
+        norm = float(np.linalg.norm(accel))
+        error = abs(norm - GRAVITY_M_S2) / GRAVITY_M_S2
+        if error > self.config.accel_gate:
+            self.counters["accel_gated"] += 1
+            return
+        cfg = self.config
+        sigma = cfg.accel_sigma_rad * (1.0 + cfg.accel_inflation * error + cfg.accel_rate_inflation_s * self._rate)
+        # the accelerometer measures -g: its negative is world down seen in the body
+        self.filter.state = self.filter.state.product(vector_likelihood(-accel, _DOWN, sigma))
+        self._tilt_known = True
+        self._accel_trusted = error < 0.05
+
+    def _update_heading(self, mag: np.ndarray) -> None:
+        if not self._tilt_known:
+            self.counters["mag_before_tilt"] += 1
+            return
+        norm = float(np.linalg.norm(mag))
+        if abs(norm - self._field_norm) > self.config.mag_norm_gate * self._field_norm:
+            self.counters["mag_gated_norm"] += 1
+            return
+        q = self.filter.estimate
+        m_world = quat.rotate(q, mag)
+        dip = math.asin(max(-1.0, min(1.0, m_world[2] / norm)))
+        if abs(math.degrees(dip - self._field_dip)) > self.config.mag_dip_gate_deg:
+            self.counters["mag_gated_dip"] += 1
+            return
+        error = self._field_heading - math.atan2(m_world[1], m_world[0])
+        error = math.remainder(error, 2.0 * math.pi)
+        self.filter.state = self.filter.state.product(heading_likelihood(q, error, self.config.mag_sigma_rad))
+
+    def _update_attitude(self, q_wxyz: tuple[float, float, float, float]) -> None:
+        sigma = math.radians(self.config.attitude_sigma_deg or 0.0)
+        self.filter.update(quat.normalize(q_wxyz), _rotation_noise(sigma * sigma))
+
+    def _estimate(self, t_ns: int) -> Estimate:
+        state = self.filter.state
+        q = state.mode
+        return Estimate(
+            t_ns=t_ns,
+            q_wxyz=tuple(float(v) for v in q),  # type: ignore[arg-type]
+            M=tuple(tuple(float(v) for v in row) for row in state.M),
+            Z=tuple(float(v) for v in state.Z),  # type: ignore[arg-type]
+            uncertainty_deg=rms_angle_deg(state, self.filter.method),
+            euler_deg=tuple(math.degrees(a) for a in euler_from_quaternion(tuple(q))),  # type: ignore[arg-type]
+            counters=dict(self.counters),
+        )
