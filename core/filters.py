@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 from core import quaternion as quat
 from core.bingham import Bingham, composition_inertia
 from core.normalization import Method
+from core.rss import rss_samples
 
 __all__ = ["BinghamFilter", "Sampler", "deterministic_samples", "identity_likelihood", "rms_angle_deg"]
 
@@ -36,8 +37,6 @@ def deterministic_samples(
     if sampler == "unscented":
         return state.unscented_samples(lam, antipodal=False, method=method)
     if sampler == "rss":
-        from core.rss import rss_samples
-
         return rss_samples(state, m, method)
     raise ValueError(f"sampler must be 'unscented' or 'rss', got {sampler!r}")
 
