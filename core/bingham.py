@@ -216,10 +216,23 @@ class Bingham:
         cross = other.log_normalizer(method) - float(np.sum(other.C * self.inertia(method)))
         return cross - self.entropy(method)
 
+    @classmethod
+    def from_exponent(cls, C: ArrayLike) -> Bingham:
+        """The Bingham ``exp(x^T C x) / N`` of a symmetric 4x4 exponent matrix ``C``."""
+        C = np.asarray(C, dtype=float)
+        if C.shape != (4, 4) or not np.all(np.isfinite(C)) or np.max(np.abs(C - C.T)) > _INERTIA_TOL * max(1.0, np.abs(C).max()):
+            raise ValueError("the exponent must be a finite symmetric 4x4 matrix")
+        evals, evecs = np.linalg.eigh(C)
+        return cls._trusted(evecs, evals)
+
     # -- operations -----------------------------------------------------------
     def product(self, other: Bingham) -> Bingham:
         """Normalized product of the two densities (QBF paper, sec. 5, eq. 3): exponents add."""
-        evals, evecs = np.linalg.eigh(self.C + other.C)
+        return self.times_exponent(other.C)
+
+    def times_exponent(self, C: NDArray[np.float64]) -> Bingham:
+        """Normalized product with ``exp(x^T C x)`` for a symmetric ``C`` (a likelihood's exponent)."""
+        evals, evecs = np.linalg.eigh(self.C + C)
         return Bingham._trusted(evecs, evals)
 
     def rotate_left(self, u: ArrayLike) -> Bingham:

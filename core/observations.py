@@ -22,9 +22,10 @@ from numpy.typing import ArrayLike
 
 from core import quaternion as quat
 from core.bingham import Bingham
-from core.filters import identity_likelihood
 
-__all__ = ["heading_likelihood", "vector_likelihood"]
+__all__ = ["heading_exponent", "heading_likelihood", "vector_exponent", "vector_likelihood"]
+
+_CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
 
 
 def _pure(v: ArrayLike) -> np.ndarray:
@@ -35,32 +36,43 @@ def _pure(v: ArrayLike) -> np.ndarray:
     return np.concatenate([[0.0], v / norm])
 
 
-def vector_likelihood(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> Bingham:
-    """Likelihood of observing direction ``b_body`` of world direction ``r_world`` (sigma in radians)."""
+def _check_sigma(sigma: float) -> None:
     if not sigma > 0:
         raise ValueError("sigma must be positive")
+
+
+def vector_exponent(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> np.ndarray:
+    """Exponent ``K / sigma^2``, ``K = sym(R(b)^T L(r))``, of the vector likelihood (module docstring)."""
+    _check_sigma(sigma)
     k = quat.right_matrix(_pure(b_body)).T @ quat.left_matrix(_pure(r_world))
-    evals, evecs = np.linalg.eigh((k + k.T) / (2.0 * sigma * sigma))
-    return Bingham._trusted(evecs, evals)
+    return (k + k.T) / (2.0 * sigma * sigma)
+
+
+def vector_likelihood(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> Bingham:
+    """Likelihood of observing direction ``b_body`` of world direction ``r_world`` (sigma in radians)."""
+    return Bingham.from_exponent(vector_exponent(b_body, r_world, sigma))
+
+
+def heading_exponent(q_ref: ArrayLike, heading_error_rad: float, sigma: float) -> np.ndarray:
+    """Exponent of a heading measurement that informs yaw only: rank one, ``-(2/sigma^2) v v^T``.
+
+    The measurement is ``z = Rz(error) (x) q_ref`` (``q_ref`` turned about
+    world down) with identity model ``z = x (x) v`` whose noise is
+    concentrated only about ``a``, the body-frame direction of world down
+    (unscented paper, sec. IV-B: zero entries in Z for axes a measurement
+    does not inform). Its density ``exp(kappa ((x^-1 (x) z) . a)^2)`` is, with
+    ``x^-1 (x) z = R(z) J x``, ``exp(kappa (v . x)^2)`` for ``v = J R(z)^T a``,
+    ``kappa = -2/sigma^2`` (the vector part of a small rotation is half its
+    angle): roll and pitch are untouched.
+    """
+    _check_sigma(sigma)
+    q_ref = quat.as_quaternion(q_ref)
+    down_body = quat.rotate(quat.conjugate(q_ref), [0.0, 0.0, 1.0])
+    z = quat.multiply(quat.from_rotvec([0.0, 0.0, heading_error_rad]), q_ref)
+    v = _CONJUGATE * (quat.right_matrix(z).T @ np.concatenate([[0.0], down_body]))
+    return (-2.0 / (sigma * sigma)) * np.outer(v, v)
 
 
 def heading_likelihood(q_ref: ArrayLike, heading_error_rad: float, sigma: float) -> Bingham:
-    """Likelihood of a heading measurement that informs yaw only.
-
-    The measurement is ``q_ref`` turned about the world down axis by
-    ``heading_error_rad``; its noise (identity model ``z = x (x) v``) is
-    concentrated only about the body-frame direction of world down, so roll
-    and pitch are untouched (unscented paper, sec. IV-B: zero entries in Z for
-    axes a measurement does not inform).
-    """
-    if not sigma > 0:
-        raise ValueError("sigma must be positive")
-    q_ref = quat.as_quaternion(q_ref)
-    down_body = quat.rotate(quat.conjugate(q_ref), [0.0, 0.0, 1.0])
-    basis = np.linalg.svd(down_body[None, :])[2]  # rows: down_body, then two orthogonal axes
-    M = np.zeros((4, 4))
-    M[1:, :3] = basis.T
-    M[0, 3] = 1.0
-    noise = Bingham._trusted(M, np.array([-2.0 / sigma**2, 0.0, 0.0, 0.0]))
-    z = quat.multiply(quat.from_rotvec([0.0, 0.0, heading_error_rad]), q_ref)
-    return identity_likelihood(z, noise)
+    """Likelihood of a yaw-only heading measurement (see :func:`heading_exponent`)."""
+    return Bingham.from_exponent(heading_exponent(q_ref, heading_error_rad, sigma))

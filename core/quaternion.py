@@ -70,19 +70,8 @@ def normalize(q: ArrayLike) -> NDArray[np.float64]:
 
 def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     """Hamilton product ``p q`` (apply ``q`` first, then ``p``)."""
-    p = np.asarray(p, dtype=float)
     q = np.asarray(q, dtype=float)
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
+    return (left_matrix(p) @ q[..., None])[..., 0]
 
 
 def conjugate(q: ArrayLike) -> NDArray[np.float64]:
@@ -114,23 +103,13 @@ def right_matrix(q: ArrayLike) -> NDArray[np.float64]:
 
 def rotate(q: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
     """Rotate 3-vectors: ``q v q*`` (body to world for an attitude quaternion)."""
-    q = np.asarray(q, dtype=float)
     v = np.asarray(v, dtype=float)
-    w = q[..., :1]
-    u = q[..., 1:]
-    t = 2.0 * np.cross(u, v)
-    return v + w * t + np.cross(u, t)
+    return (to_matrix(q) @ v[..., None])[..., 0]
 
 
 def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
-    """Rotation matrix ``R`` with ``R @ v == rotate(q, v)``."""
-    w, x, y, z = np.moveaxis(np.asarray(q, dtype=float), -1, 0)
-    rows = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+    """Rotation matrix ``R`` with ``R @ v == rotate(q, v)``: the vector block of ``L(q) R(q)^T``."""
+    return (left_matrix(q) @ np.swapaxes(right_matrix(q), -1, -2))[..., 1:, 1:]
 
 
 def from_matrix(R: ArrayLike) -> NDArray[np.float64]:
