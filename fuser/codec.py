@@ -50,7 +50,7 @@ def encode_sample(sample: Sample, receive_ns: int) -> dict[str, Any]:
 def decode_sample(topic: str, d: dict[str, Any]) -> tuple[Sample, int]:
     """Inverse of :func:`encode_sample`: the sample and its receive time."""
     src = SourceId(**d["source"])
-    vec = lambda key: tuple(float(v) for v in d[key])  # noqa: E731
+    vec = lambda key: tuple(map(float, d[key]))  # noqa: E731
     if topic == "/input/imu":
         mag = None if d.get("mag_gauss") is None else vec("mag_gauss")
         return ImuSample(int(d["t_ns"]), vec("gyro_rad_s"), vec("accel_m_s2"), mag, src), int(d["receive_ns"])  # type: ignore[arg-type]
@@ -68,6 +68,8 @@ class Estimate:
     ``q_wxyz`` rotates body FRD into world NED. ``M`` (4x4, row-major) and
     ``Z`` are the full Bingham posterior; ``uncertainty_deg`` its RMS
     angular deviation; ``euler_deg`` roll, pitch, yaw (ZYX) for convenience.
+    ``sensor_t_ns`` is the tick time on the clock of the first IMU stream
+    (the sender's own time), to line estimates up with autopilot logs.
     """
 
     t_ns: int
@@ -77,6 +79,7 @@ class Estimate:
     uncertainty_deg: float
     euler_deg: tuple[float, float, float]
     counters: dict[str, int] = field(default_factory=dict)
+    sensor_t_ns: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -87,6 +90,7 @@ class Estimate:
             "uncertainty_deg": self.uncertainty_deg,
             "euler_deg": list(self.euler_deg),
             "counters": dict(sorted(self.counters.items())),
+            "sensor_t_ns": self.sensor_t_ns,
         }
 
     @classmethod
@@ -99,4 +103,5 @@ class Estimate:
             float(d["uncertainty_deg"]),
             tuple(d["euler_deg"]),  # type: ignore[arg-type]
             dict(d.get("counters", {})),
+            d.get("sensor_t_ns"),
         )

@@ -15,10 +15,11 @@ that already ran is late, counted and dropped.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 from dataclasses import dataclass, field
 
-from drivers.samples import Sample
+from drivers.samples import ImuSample, Sample
 from fuser.codec import Estimate
 from fuser.config import FuserConfig
 from fuser.model import FusionModel
@@ -101,4 +102,7 @@ class FusionLoop:
         self.counters["ticks"] += 1
         estimate = self.model.step([p.sample for p in due], dt, tick_ns)
         estimate.counters.update(self.counters)
+        imu_offsets = [off for (_, kind), off in self._offsets.items() if kind is ImuSample]
+        if imu_offsets:
+            estimate = dataclasses.replace(estimate, sensor_t_ns=tick_ns - imu_offsets[0])
         return estimate

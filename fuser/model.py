@@ -4,8 +4,8 @@ Per tick: integrate each IMU's gyro into a rotation ``u`` and predict
 ``x_k = x_(k-1) (x) u (x) w`` in closed form (progressive paper, Alg. 1) with
 ``w``'s concentration from the gyro noise density and the tick length;
 update with the mean gravity direction (an exact Bingham likelihood,
-:func:`core.observations.vector_likelihood`), the magnetometer's heading
-(yaw-only, :func:`core.observations.heading_likelihood`) and, if
+:func:`core.observations.vector_exponent`), the magnetometer's heading
+(yaw-only, :func:`core.observations.heading_exponent`) and, if
 configured, the autopilot's attitude (identity measurement). The state
 starts uniform: no prior knowledge of the attitude is needed.
 """
@@ -20,7 +20,7 @@ import numpy as np
 from core import quaternion as quat
 from core.bingham import Bingham
 from core.filters import BinghamFilter, rms_angle_deg
-from core.observations import heading_likelihood, vector_likelihood
+from core.observations import heading_exponent, vector_exponent
 from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
 from fuser.codec import Estimate
@@ -152,7 +152,7 @@ class FusionModel:
         cfg = self.config
         sigma = cfg.accel_sigma_rad * (1.0 + cfg.accel_inflation * error + cfg.accel_rate_inflation_s * self._rate)
         # the accelerometer measures -g: its negative is world down seen in the body
-        self.filter.state = self.filter.state.product(vector_likelihood(-accel, _DOWN, sigma))
+        self.filter.state = self.filter.state.times_exponent(vector_exponent(-accel, _DOWN, sigma))
         self._tilt_known = True
         self._accel_trusted = error < 0.05
 
@@ -172,7 +172,7 @@ class FusionModel:
             return
         error = self._field_heading - math.atan2(m_world[1], m_world[0])
         error = math.remainder(error, 2.0 * math.pi)
-        self.filter.state = self.filter.state.product(heading_likelihood(q, error, self.config.mag_sigma_rad))
+        self.filter.state = self.filter.state.times_exponent(heading_exponent(q, error, self.config.mag_sigma_rad))
 
     def _update_attitude(self, q_wxyz: tuple[float, float, float, float]) -> None:
         sigma = math.radians(self.config.attitude_sigma_deg or 0.0)

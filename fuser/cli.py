@@ -1,0 +1,263 @@
+"""``bingham-fuser``: the command line.
+
+    bingham-fuser sim                      simulated vehicle -> loop -> zenoh + sim.mcap
+    bingham-fuser run --mavlink udpin:0.0.0.0:14550 --can socketcan:can0
+    bingham-fuser replay flight.mcap -o fused.mcap
+    bingham-fuser listen
+    bingham-fuser report fused.mcap -o report/
+
+Every setting can also come from a TOML file (``--config``); flags win.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any, Sequence
+
+from fuser.config import FuserConfig, load_config
+
+__all__ = ["main"]
+
+log = logging.getLogger("bingham_fuser")
+
+
+def _common(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("common options")
+    g.add_argument("--config", metavar="FILE.toml", help="read settings from a TOML file (flags override it)")
+    g.add_argument("--vehicle", help="vehicle name in the zenoh keys bingham_fuser/<vehicle>/... (default: sim)")
+    g.add_argument("--rate", type=float, dest="rate_hz", metavar="HZ", help="estimates per second (default: 100)")
+    g.add_argument("--no-mag", action="store_true", help="6-D fusion: ignore magnetometers")
+    g.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+
+
+def _zenoh(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("zenoh")
+    g.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT", help="listen endpoint (repeatable; default tcp/127.0.0.1:7447)")
+    g.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT", help="router or peer to connect to (repeatable)")
+    g.add_argument("--no-zenoh", action="store_true", help="do not publish")
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="bingham-fuser",
+        description="Streaming quaternion Bingham-filter attitude fuser: MAVLink / DroneCAN in, zenoh and MCAP out.",
+        epilog="Run 'bingham-fuser COMMAND --help' for a command's options.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("sim", help="fly the simulated vehicle through the live loop (no drone needed)",
+                       description="Fly the built-in simulated multirotor (hover, turns, aggressive manoeuvres, a flip) "
+                                   "through the real decoders and the live loop; publish on zenoh, record MCAP with the truth, "
+                                   "and print the error against the truth.")
+    _common(p)
+    _zenoh(p)
+    p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds of flight (default: 60)")
+    p.add_argument("--speed", type=float, default=1.0, metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
+    p.add_argument("--transport", choices=("mavlink", "dronecan"), default="mavlink", help="what the vehicle speaks (default: mavlink)")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed (default: 0)")
+    p.add_argument("--imu-rate", type=float, default=400.0, metavar="HZ", help="IMU rate (default: 400)")
+    p.add_argument("-o", "--record", default="sim.mcap", metavar="FILE.mcap", help="record inputs, truth and estimates here (default: sim.mcap; '' to disable)")
+
+    p = sub.add_parser("run", help="fuse live MAVLink and/or DroneCAN input",
+                       description="Fuse live input. MAVLink CONN is anything pymavlink opens: udpin:0.0.0.0:14550, "
+                                   "tcp:127.0.0.1:5760, /dev/ttyUSB0 (with --baud). CAN is INTERFACE:CHANNEL for python-can: "
+                                   "socketcan:can0, slcan:/dev/ttyACM0, virtual:test.")
+    _common(p)
+    _zenoh(p)
+    p.add_argument("--mavlink", action="append", default=[], metavar="CONN", help="MAVLink connection (repeatable)")
+    p.add_argument("--baud", type=int, default=57600, help="serial baud rate for MAVLink (default: 57600)")
+    p.add_argument("--can", action="append", default=[], metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
+    p.add_argument("--bitrate", type=int, default=1_000_000, help="CAN bitrate where the interface needs one (default: 1000000)")
+    p.add_argument("--attitude-sigma", type=float, dest="attitude_sigma_deg", metavar="DEG", help="also fuse the autopilot's attitude with this noise")
+    p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs and estimates (in a separate process)")
+
+    p = sub.add_parser("replay", help="replay a recorded MCAP or .tlog through the loop, as fast as possible",
+                       description="Replay a log (MCAP recorded by bingham-fuser, or a MAVLink .tlog) through the same loop on "
+                                   "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes.")
+    _common(p)
+    p.add_argument("log", help="input log (.mcap or .tlog)")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
+
+    p = sub.add_parser("listen", help="print the estimates arriving on zenoh", description="Subscribe to bingham_fuser/<vehicle>/attitude and print each estimate.")
+    _common(p)
+    _zenoh(p)
+    p.add_argument("--json", action="store_true", help="print the raw JSON payloads")
+    p.add_argument("--count", type=int, metavar="N", help="stop after N estimates")
+
+    p = sub.add_parser("report", help="plots and a summary table of a fused log", description="Write PNG plots (attitude against the truth or the "
+                       "autopilot, error, uncertainty) and print a summary table. Needs matplotlib (pip install 'bingham-fuser[report]').")
+    _common(p)
+    p.add_argument("log", help="an MCAP written by sim, run or replay")
+    p.add_argument("-o", "--output", default="report", metavar="DIR", help="folder for the PNGs (default: report)")
+    return parser
+
+
+def _config(args: argparse.Namespace) -> FuserConfig:
+    overrides: dict[str, Any] = {"vehicle": args.vehicle, "rate_hz": args.rate_hz}
+    if args.no_mag:
+        overrides["use_mag"] = False
+    for name in ("zenoh_listen", "zenoh_connect"):
+        if getattr(args, name, None):
+            overrides[name] = tuple(getattr(args, name))
+    if getattr(args, "attitude_sigma_deg", None) is not None:
+        overrides["attitude_sigma_deg"] = args.attitude_sigma_deg
+    return load_config(args.config, **overrides)
+
+
+def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
+    if getattr(args, "no_zenoh", False):
+        return None
+    from fuser.publish import ZenohPublisher, zenoh_config
+
+    pub = ZenohPublisher(zenoh_config(list(config.zenoh_listen), list(config.zenoh_connect)), config.vehicle)
+    stack.callback(pub.close)
+    return pub
+
+
+def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
+    from drivers.sim import SimConfig
+    from fuser.pipeline import Pipeline
+    from fuser.record import RecorderProcess
+    from fuser.simulate import run_sim
+
+    with ExitStack() as stack:
+        pub = _publisher(stack, config, args)
+        rec = None
+        if args.record:
+            rec = RecorderProcess(args.record, metadata={"source": "bingham-fuser sim", "seed": str(args.seed)})
+            stack.callback(rec.close)
+        outputs = [s for s in (rec.write_estimate if rec else None, pub.publish_estimate if pub else None) if s]
+        pipeline = Pipeline(config, [rec.write_sample] if rec else [], outputs)
+        stop = _stop_on_signal()
+        sim = SimConfig(seed=args.seed, duration_s=args.duration, imu_rate_hz=args.imu_rate)
+        print(f"sim: {args.duration:g} s of flight at {'full speed' if args.speed <= 0 else f'{args.speed:g}x'}"
+              + (f", publishing on bingham_fuser/{config.vehicle}/attitude" if pub else "")
+              + (f", recording {args.record}" if rec else ""), file=sys.stderr)
+        run = run_sim(pipeline, sim, args.transport, args.speed, [rec.write_truth] if rec else [], stop)
+    print(f"sim: {run.samples} samples -> {run.estimates} estimates in {run.wall_s:.1f} s")
+    if args.record:
+        _print_scores(args.record)
+    return 0
+
+
+def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
+    from drivers.sources import DroneCanSource, MavlinkSource
+    from fuser.live import LiveRunner
+    from fuser.pipeline import Pipeline
+    from fuser.record import RecorderProcess
+
+    if not args.mavlink and not args.can:
+        print("run: give at least one --mavlink CONN or --can IFACE:CHANNEL", file=sys.stderr)
+        return 2
+    with ExitStack() as stack:
+        sources: dict[str, Any] = {}
+        for conn in args.mavlink:
+            options = {"baud": args.baud} if conn.startswith("/dev/") or conn.upper().startswith("COM") else {}
+            sources[f"mavlink:{conn}"] = stack.enter_context(MavlinkSource(conn, **options))
+        for spec in args.can:
+            interface, _, channel = spec.partition(":")
+            if not channel:
+                print(f"run: --can wants INTERFACE:CHANNEL, got {spec!r}", file=sys.stderr)
+                return 2
+            extra = {} if interface in ("virtual", "socketcan") else {"bitrate": args.bitrate}
+            sources[f"can:{spec}"] = stack.enter_context(DroneCanSource(interface=interface, channel=channel, **extra))
+        pub = _publisher(stack, config, args)
+        rec = None
+        if args.record:
+            rec = RecorderProcess(args.record, metadata={"source": "bingham-fuser run"})
+            stack.callback(rec.close)
+        outputs = [s for s in (rec.write_estimate if rec else None, pub.publish_estimate if pub else None) if s]
+        pipeline = Pipeline(config, [rec.write_sample] if rec else [], outputs)
+        status_sinks = [s for s in (rec.write_status if rec else None, (lambda t, d: pub.publish_status(d)) if pub else None) if s]
+
+        def health() -> dict:
+            out: dict[str, Any] = {}
+            if rec is not None:
+                out["recorder"] = {"alive": rec.alive, "dropped": rec.dropped}
+            if pub is not None:
+                out["publisher"] = {"errors": pub.errors}
+            return out
+
+        runner = LiveRunner(pipeline, sources, status_sinks, health)
+        _stop_on_signal(runner.stop)
+        print(f"run: fusing {', '.join(sources)} at {config.rate_hz:g} Hz; Ctrl-C to stop", file=sys.stderr)
+        status = runner.run(args.duration)
+    print(f"run: {status['estimates']} estimates; loop {status['loop']}; latency {status['latency']}")
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
+    from fuser.replay import replay
+
+    summary = replay(args.log, args.output, config)
+    print(f"replay: {summary.samples} samples -> {summary.estimates} estimates in {summary.seconds:.2f} s "
+          f"({summary.samples_per_s:,.0f} samples/s); {args.output}")
+    if summary.counters:
+        print("counters: " + ", ".join(f"{k}={v}" for k, v in sorted(summary.counters.items())))
+    _print_scores(args.output)
+    return 0
+
+
+def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
+    from fuser.publish import listen, zenoh_config
+
+    # a listener connects to the fuser's endpoint unless told otherwise
+    connect = list(config.zenoh_connect) or list(config.zenoh_listen)
+    listen(zenoh_config(listen=[], connect=connect), config.vehicle, json_output=args.json, count=args.count)
+    return 0
+
+
+def _cmd_report(args: argparse.Namespace, config: FuserConfig) -> int:
+    try:
+        from fuser.report import write_report
+    except ImportError as exc:
+        print(f"report needs matplotlib: pip install 'bingham-fuser[report]' ({exc})", file=sys.stderr)
+        return 2
+    for line in write_report(args.log, Path(args.output)):
+        print(line)
+    return 0
+
+
+def _print_scores(path: str) -> None:
+    from fuser.report import score_log
+
+    for line in score_log(path):
+        print(line)
+
+
+def _stop_on_signal(callback=None):
+    """Make Ctrl-C / SIGTERM stop the run cleanly (files closed, footer written)."""
+    stopped = {"flag": False}
+
+    def handler(signum, frame):  # noqa: ARG001
+        stopped["flag"] = True
+        if callback is not None:
+            callback()
+
+    if threading.current_thread() is threading.main_thread():  # signals can only be caught there
+        signal.signal(signal.SIGINT, handler)
+        signal.signal(signal.SIGTERM, handler)
+    return lambda: stopped["flag"]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)], format="%(levelname)s %(name)s: %(message)s")
+    try:
+        config = _config(args)
+    except (OSError, ValueError) as exc:
+        print(f"bingham-fuser: {exc}", file=sys.stderr)
+        return 2
+    commands = {"sim": _cmd_sim, "run": _cmd_run, "replay": _cmd_replay, "listen": _cmd_listen, "report": _cmd_report}
+    return commands[args.command](args, config)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,70 @@
+"""Errors of estimates against a reference attitude (truth, or an autopilot's estimate).
+
+Total error is the rotation angle between estimate and reference; tilt error
+the angle between their down directions (roll and pitch); heading error the
+difference of their yaw about world down. The reference is interpolated
+(slerp) at the estimate times; estimates outside the reference's time span
+are left out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation, Slerp
+
+from core import quaternion as quat
+
+__all__ = ["AttitudeErrors", "attitude_errors"]
+
+
+@dataclass(frozen=True)
+class AttitudeErrors:
+    """Per-estimate errors in degrees at times ``t_ns``, with the reported uncertainty."""
+
+    t_ns: NDArray[np.int64]
+    total_deg: NDArray[np.float64]
+    tilt_deg: NDArray[np.float64]
+    heading_deg: NDArray[np.float64]
+    uncertainty_deg: NDArray[np.float64]
+
+    def rms(self, since_s: float = 0.0) -> dict[str, float]:
+        """RMS of each error (degrees) over estimates at least ``since_s`` after the first."""
+        keep = (self.t_ns - self.t_ns[0]) >= since_s * 1e9
+        return {
+            name: float(np.sqrt(np.mean(values[keep] ** 2)))
+            for name, values in (("total", self.total_deg), ("tilt", self.tilt_deg), ("heading", self.heading_deg), ("uncertainty", self.uncertainty_deg))
+        }
+
+
+def _yaw(q: NDArray) -> NDArray:
+    forward = quat.rotate(q, [1.0, 0.0, 0.0])
+    return np.arctan2(forward[..., 1], forward[..., 0])
+
+
+def attitude_errors(
+    t_ns: NDArray, q_est: NDArray, uncertainty_deg: NDArray, ref_t_ns: NDArray, q_ref: NDArray
+) -> AttitudeErrors:
+    """Compare estimates (w, x, y, z) with a reference sampled at ``ref_t_ns``."""
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    ref_t = np.asarray(ref_t_ns, dtype=np.int64)
+    inside = (t_ns >= ref_t[0]) & (t_ns <= ref_t[-1])
+    t_ns = t_ns[inside]
+    q_est = np.asarray(q_est, dtype=float)[inside]
+    t0 = ref_t[0]
+    slerp = Slerp((ref_t - t0) * 1e-9, Rotation.from_quat(np.asarray(q_ref, dtype=float)[:, [1, 2, 3, 0]]))
+    q_r = slerp((t_ns - t0) * 1e-9).as_quat()[:, [3, 0, 1, 2]]
+    down = np.array([0.0, 0.0, 1.0])
+    d_est = quat.rotate(quat.conjugate(q_est), down)
+    d_ref = quat.rotate(quat.conjugate(q_r), down)
+    tilt = np.degrees(np.arctan2(np.linalg.norm(np.cross(d_est, d_ref), axis=-1), np.sum(d_est * d_ref, axis=-1)))
+    heading = np.degrees(np.abs(np.remainder(_yaw(q_est) - _yaw(q_r) + np.pi, 2 * np.pi) - np.pi))
+    return AttitudeErrors(
+        t_ns,
+        np.degrees(quat.angular_distance(q_est, q_r)),
+        tilt,
+        heading,
+        np.asarray(uncertainty_deg, dtype=float)[inside],
+    )
