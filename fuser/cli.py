@@ -20,6 +20,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any, Sequence
 
+from drivers.scenarios import SCENARIOS
 from fuser.config import FuserConfig, load_config
 
 __all__ = ["main"]
@@ -58,6 +59,9 @@ def _parser() -> argparse.ArgumentParser:
     _common(p)
     _zenoh(p)
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds of flight (default: 60)")
+    p.add_argument("--scenario", choices=("full",) + tuple(SCENARIOS), default="full",
+                   help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
+                        + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()))
     p.add_argument("--speed", type=float, default=1.0, metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
     p.add_argument("--transport", choices=("mavlink", "dronecan"), default="mavlink", help="what the vehicle speaks (default: mavlink)")
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default: 0)")
@@ -122,25 +126,33 @@ def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
 
 
 def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
-    from drivers.sim import SimConfig
+    from drivers.scenarios import scenario
+    from drivers.sim import SimConfig, simulate
     from fuser.pipeline import Pipeline
-    from fuser.record import RecorderProcess
+    from fuser.record import McapRecorder, RecorderProcess
     from fuser.simulate import run_sim
 
     with ExitStack() as stack:
         pub = _publisher(stack, config, args)
         rec = None
         if args.record:
-            rec = RecorderProcess(args.record, metadata={"source": "bingham-fuser sim", "seed": str(args.seed)})
+            # paced runs record in a separate process, like live ones; a full-speed run
+            # would outpace it, so it records in-process and loses nothing
+            recorder = McapRecorder if args.speed <= 0 else RecorderProcess
+            rec = recorder(args.record, metadata={"source": "bingham-fuser sim", "scenario": args.scenario, "seed": str(args.seed)})
             stack.callback(rec.close)
         outputs = [s for s in (rec.write_estimate if rec else None, pub.publish_estimate if pub else None) if s]
         pipeline = Pipeline(config, [rec.write_sample] if rec else [], outputs)
         stop = _stop_on_signal()
-        sim = SimConfig(seed=args.seed, duration_s=args.duration, imu_rate_hz=args.imu_rate)
-        print(f"sim: {args.duration:g} s of flight at {'full speed' if args.speed <= 0 else f'{args.speed:g}x'}"
+        if args.scenario == "full":
+            flight = simulate(SimConfig(seed=args.seed, duration_s=args.duration, imu_rate_hz=args.imu_rate))
+        else:
+            flight = scenario(args.scenario, args.seed, args.imu_rate)
+        seconds = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
+        print(f"sim: {args.scenario} flight, {seconds:.0f} s at {'full speed' if args.speed <= 0 else f'{args.speed:g}x'}"
               + (f", publishing on bingham_fuser/{config.vehicle}/attitude" if pub else "")
               + (f", recording {args.record}" if rec else ""), file=sys.stderr)
-        run = run_sim(pipeline, sim, args.transport, args.speed, [rec.write_truth] if rec else [], stop)
+        run = run_sim(pipeline, flight, args.transport, args.speed, [rec.write_truth] if rec else [], stop)
     print(f"sim: {run.samples} samples -> {run.estimates} estimates in {run.wall_s:.1f} s")
     if args.record:
         _print_scores(args.record)

@@ -42,8 +42,8 @@ class FuserConfig:
     """Direction noise of the gravity measurement."""
     accel_gate: float = 0.2
     """Reject the accelerometer when | |f| - g | / g exceeds this (manoeuvres, impacts)."""
-    accel_inflation: float = 10.0
-    """Below the gate, sigma grows by this factor times the relative norm error."""
+    accel_norm_filter_s: float = 0.3
+    """Time constant of the low-pass on the specific-force norm (separates vibration from sustained acceleration)."""
     accel_rate_inflation_s: float = 2.0
     """Sigma also grows by this factor times the rotation rate (rad/s): turns carry centripetal acceleration."""
     use_mag: bool = True

@@ -62,6 +62,7 @@ class FusionModel:
         self.gyro_bias = np.zeros(3)
         self._rate = 0.0
         self._accel_trusted = False
+        self._norm_error = 0.0
 
     # -- one tick ---------------------------------------------------------------
     def step(self, samples: list[Sample], dt_ns: int, t_ns: int) -> Estimate:
@@ -71,7 +72,7 @@ class FusionModel:
         self._predict(imu, dt_ns)
         predicted = self.filter.estimate
         if imu:
-            self._update_gravity(np.mean([s.accel_m_s2 for s in imu], axis=0))
+            self._update_gravity(np.mean([s.accel_m_s2 for s in imu], axis=0), dt_ns * 1e-9)
         mags = [s.mag_gauss for s in samples if isinstance(s, MagSample)] + [s.mag_gauss for s in imu if s.mag_gauss is not None]
         if mags and self.config.use_mag:
             self._update_heading(np.mean(mags, axis=0))
@@ -143,18 +144,32 @@ class FusionModel:
             self._noise_cache[key] = _rotation_noise(variance)
         return self._noise_cache[key]
 
-    def _update_gravity(self, accel: np.ndarray) -> None:
+    def _update_gravity(self, accel: np.ndarray, dt: float) -> None:
+        """Gravity direction update, trusted according to how much else the accelerometer may be feeling.
+
+        A thrust-driven vehicle's accelerometer reads the thrust direction:
+        in a sustained banked turn at bank ``phi`` the reading is off by
+        ``phi`` while its norm is only ``1/cos(phi) - 1 ~ phi^2/2`` too large,
+        so the direction error is about ``sqrt(2 e)`` for a norm error ``e``.
+        ``e`` is low-passed (vibration averages out, sustained acceleration
+        does not) and that angle is added in quadrature to the sensor noise;
+        rotation inflates it further (centripetal terms); beyond the gate the
+        reading is rejected.
+        """
+        cfg = self.config
         norm = float(np.linalg.norm(accel))
-        error = abs(norm - GRAVITY_M_S2) / GRAVITY_M_S2
-        if error > self.config.accel_gate:
+        instant = abs(norm - GRAVITY_M_S2) / GRAVITY_M_S2
+        blend = min(1.0, dt / cfg.accel_norm_filter_s)
+        self._norm_error += blend * (instant - self._norm_error)
+        error = max(self._norm_error, 0.0)
+        if instant > 2 * cfg.accel_gate or error > cfg.accel_gate:
             self.counters["accel_gated"] += 1
             return
-        cfg = self.config
-        sigma = cfg.accel_sigma_rad * (1.0 + cfg.accel_inflation * error + cfg.accel_rate_inflation_s * self._rate)
+        sigma = math.sqrt(cfg.accel_sigma_rad**2 + 2.0 * error) * (1.0 + cfg.accel_rate_inflation_s * self._rate)
         # the accelerometer measures -g: its negative is world down seen in the body
         self.filter.state = self.filter.state.times_exponent(vector_exponent(-accel, _DOWN, sigma))
         self._tilt_known = True
-        self._accel_trusted = error < 0.05
+        self._accel_trusted = error < 0.5 * cfg.accel_gate
 
     def _update_heading(self, mag: np.ndarray) -> None:
         if not self._tilt_known:
@@ -167,7 +182,8 @@ class FusionModel:
         q = self.filter.estimate
         m_world = quat.rotate(q, mag)
         dip = math.asin(max(-1.0, min(1.0, m_world[2] / norm)))
-        if abs(math.degrees(dip - self._field_dip)) > self.config.mag_dip_gate_deg:
+        tilt_doubt = rms_angle_deg(self.filter.state, self.filter.method)  # a wrong tilt shifts the dip too
+        if abs(math.degrees(dip - self._field_dip)) > self.config.mag_dip_gate_deg + 2.0 * tilt_doubt:
             self.counters["mag_gated_dip"] += 1
             return
         error = self._field_heading - math.atan2(m_world[1], m_world[0])

@@ -14,7 +14,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
-from drivers.sim import SimConfig, simulate
+from drivers.sim import Flight
 from fuser.inputs import SIM_LINK_LATENCY_NS, sim_ticks
 from fuser.pipeline import Pipeline
 
@@ -30,16 +30,22 @@ class SimRun:
 
 def run_sim(
     pipeline: Pipeline,
-    sim: SimConfig,
+    flight: Flight,
     transport: str = "mavlink",
     speed: float = 1.0,
     truth_sinks: Sequence[Callable[[int, tuple], None]] = (),
     should_stop: Callable[[], bool] = lambda: False,
+    truth_rate_hz: float = 100.0,
 ) -> SimRun:
-    """Fly the simulated vehicle through ``pipeline``; returns counts and wall time."""
-    flight = simulate(sim)
+    """Fly a simulated flight through ``pipeline``; returns counts and wall time.
+
+    Truth goes to ``truth_sinks`` at most ``truth_rate_hz`` times a second
+    (slerp between 100 Hz samples is far more accurate than any estimate).
+    """
     start_wall = time.monotonic_ns()
     t0 = int(flight.t_ns[0])
+    truth_period = round(1e9 / truth_rate_hz)
+    next_truth = t0
     samples = 0
     for t_ns, q_true, tick in sim_ticks(flight, transport):
         if should_stop():
@@ -52,8 +58,10 @@ def run_sim(
             received = time.monotonic_ns()
         else:
             received = t_ns + SIM_LINK_LATENCY_NS
-        for sink in truth_sinks:
-            sink(t_ns, tuple(float(v) for v in q_true))
+        if t_ns >= next_truth:
+            next_truth += truth_period
+            for sink in truth_sinks:
+                sink(t_ns, tuple(float(v) for v in q_true))
         for sample in tick:
             pipeline.feed(sample, received)
             samples += 1

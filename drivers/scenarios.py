@@ -1,0 +1,53 @@
+"""Named cuts of the simulated flight, with the faults a real flight log has.
+
+Each scenario is a window of :func:`drivers.sim.simulate`'s programme,
+optionally with a magnet near the sensor or a lossy IMU link. They are
+what ``logs/`` holds and what the tests replay.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .sim import Flight, SimConfig, simulate
+
+__all__ = ["SCENARIOS", "scenario"]
+
+SCENARIOS: dict[str, str] = {
+    "hover": "the first 12 s: hover with small attitude changes",
+    "aggressive": "4-32 s: hover, banked turns, then fast manoeuvres up to 500 deg/s",
+    "magnet": "hover with a magnet brought near the sensor from 6 s to 9 s",
+    "dropout": "hover and turns with 20% of IMU samples lost and a 0.5 s outage",
+}
+
+_MAGNET_GAUSS = np.array([0.35, -0.25, 0.1])
+"""Body-frame field of the magnet at its closest (stronger than the earth's)."""
+
+
+def _window(flight: Flight, start_s: float, end_s: float) -> Flight:
+    t = (flight.t_ns - flight.t_ns[0]) * 1e-9
+    keep = (t >= start_s) & (t < end_s)
+    first, last = int(np.argmax(keep)), int(len(keep) - np.argmax(keep[::-1]))
+    att = (flight.attitude_index >= first) & (flight.attitude_index < last)
+    sliced = {f.name: getattr(flight, f.name)[first:last] for f in dataclasses.fields(flight) if f.name not in ("attitude_index", "q_attitude")}
+    return Flight(**sliced, attitude_index=flight.attitude_index[att] - first, q_attitude=flight.q_attitude[att])
+
+
+def scenario(name: str, seed: int = 0, imu_rate_hz: float = 200.0) -> Flight:
+    """The named scenario's flight (see :data:`SCENARIOS`), deterministic for a seed."""
+    if name == "hover":
+        return _window(simulate(SimConfig(seed=seed, duration_s=12.0, imu_rate_hz=imu_rate_hz)), 0.0, 12.0)
+    if name == "aggressive":
+        return _window(simulate(SimConfig(seed=seed, duration_s=32.0, imu_rate_hz=imu_rate_hz)), 4.0, 32.0)
+    if name == "magnet":
+        flight = simulate(SimConfig(seed=seed, duration_s=12.0, imu_rate_hz=imu_rate_hz))
+        t = (flight.t_ns - flight.t_ns[0]) * 1e-9
+        closeness = np.clip(np.minimum(t - 6.0, 9.0 - t), 0.0, 0.5) / 0.5  # ramps in and out over 0.5 s
+        return dataclasses.replace(flight, mag_gauss=flight.mag_gauss + closeness[:, None] * _MAGNET_GAUSS)
+    if name == "dropout":
+        flight = simulate(SimConfig(seed=seed, duration_s=16.0, imu_rate_hz=imu_rate_hz, dropout_probability=0.2))
+        t = (flight.t_ns - flight.t_ns[0]) * 1e-9
+        return dataclasses.replace(flight, imu_valid=flight.imu_valid & ~((t >= 11.0) & (t < 11.5)))
+    raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")

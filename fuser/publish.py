@@ -1,0 +1,194 @@
+"""zenoh publishing of estimates and status, and the matching subscriber side.
+
+Keys: ``bingham_fuser/<vehicle>/attitude`` (one :class:`~fuser.codec.Estimate`
+as JSON per tick) and ``bingham_fuser/<vehicle>/status`` (a JSON dict). The
+publisher never raises: a zenoh failure is logged once and counted, and the
+fusion loop goes on. See ``fuser/IO.md`` for the payloads and endpoints.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import sys
+from collections.abc import Callable
+from typing import Any, TextIO
+
+import zenoh
+
+from .codec import Estimate, dumps
+
+__all__ = [
+    "DEFAULT_ENDPOINT",
+    "Subscription",
+    "ZenohPublisher",
+    "format_estimate",
+    "key",
+    "listen",
+    "subscribe",
+    "zenoh_config",
+]
+
+log = logging.getLogger(__name__)
+
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+def key(vehicle: str, leaf: str) -> str:
+    """``bingham_fuser/<vehicle>/<leaf>``; vehicle ``*`` matches every vehicle when subscribing."""
+    return f"bingham_fuser/{vehicle}/{leaf}"
+
+
+def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
+    """A peer configuration with explicit endpoints and multicast/gossip scouting off.
+
+    With neither argument the peer listens on ``tcp/127.0.0.1:7447``; with only
+    ``connect`` it listens nowhere (it dials out, e.g. to a router).
+    """
+    if listen is None:
+        listen = [] if connect else [DEFAULT_ENDPOINT]
+    conf = {
+        "mode": "peer",
+        "listen": {"endpoints": list(listen)},
+        "connect": {"endpoints": list(connect or [])},
+        "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
+    }
+    return zenoh.Config.from_json5(json.dumps(conf))
+
+
+class ZenohPublisher:
+    """Publish estimates and status for one vehicle; counts failures in ``errors``, never raises.
+
+    Puts use congestion control DROP and express delivery: a slow subscriber
+    loses samples rather than stalling the loop, and nothing waits for a batch.
+    """
+
+    def __init__(self, config: zenoh.Config, vehicle: str) -> None:
+        self.vehicle = vehicle
+        self.published = 0
+        self.errors = 0
+        self.error: str | None = None
+        """The first failure, for the status."""
+        self._session: zenoh.Session | None = None
+        self._attitude: zenoh.Publisher | None = None
+        self._status: zenoh.Publisher | None = None
+        try:
+            self._session = zenoh.open(config)
+            self._attitude = self._declare(self._session, "attitude")
+            self._status = self._declare(self._session, "status")
+        except zenoh.ZError as e:
+            self._fail(f"cannot open the zenoh session, nothing will be published: {e}")
+
+    def _declare(self, session: zenoh.Session, leaf: str) -> zenoh.Publisher:
+        return session.declare_publisher(
+            key(self.vehicle, leaf),
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            congestion_control=zenoh.CongestionControl.DROP,
+            express=True,
+        )
+
+    def _fail(self, message: str) -> None:
+        self.errors += 1
+        if self.error is None:
+            self.error = message
+            log.error("zenoh: %s", message)
+
+    def _put(self, publisher: zenoh.Publisher | None, payload: bytes) -> None:
+        if publisher is None:
+            self.errors += 1
+            return
+        try:
+            publisher.put(payload)
+            self.published += 1
+        except zenoh.ZError as e:
+            self._fail(f"put failed: {e}")
+
+    @property
+    def has_subscribers(self) -> bool:
+        """True when some subscriber matches the attitude key."""
+        try:
+            return self._attitude is not None and self._attitude.matching_status.matching
+        except zenoh.ZError:
+            return False
+
+    def publish_estimate(self, est: Estimate) -> None:
+        self._put(self._attitude, dumps(est.to_dict()))
+
+    def publish_status(self, status: dict[str, Any]) -> None:
+        self._put(self._status, dumps(status))
+
+    def close(self) -> None:
+        if self._session is not None:
+            session, self._session = self._session, None
+            self._attitude = self._status = None
+            try:
+                session.close()
+            except zenoh.ZError as e:
+                self._fail(f"close failed: {e}")
+
+
+class Subscription:
+    """Callbacks on raw payloads of ``bingham_fuser/<vehicle>/<leaf>``; ``close()`` to stop."""
+
+    def __init__(self, config: zenoh.Config, vehicle: str, handlers: dict[str, Callable[[bytes], None]]) -> None:
+        self._session = zenoh.open(config)
+        self._subscribers = [
+            self._session.declare_subscriber(key(vehicle, leaf), _on_payload(handler)) for leaf, handler in handlers.items()
+        ]
+
+    def close(self) -> None:
+        self._session.close()
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _on_payload(handler: Callable[[bytes], None]) -> Callable[[zenoh.Sample], None]:
+    return lambda sample: handler(sample.payload.to_bytes())
+
+
+def subscribe(
+    config: zenoh.Config,
+    vehicle: str,
+    on_estimate: Callable[[Estimate], None],
+    on_status: Callable[[dict[str, Any]], None] | None = None,
+) -> Subscription:
+    """Call ``on_estimate`` (and ``on_status``) from zenoh's thread for each arriving message."""
+    handlers = {"attitude": lambda b: on_estimate(Estimate.from_dict(json.loads(b)))}
+    if on_status is not None:
+        handlers["status"] = lambda b: on_status(json.loads(b))
+    return Subscription(config, vehicle, handlers)
+
+
+def format_estimate(est: Estimate) -> str:
+    """One human line: tick time, roll/pitch/yaw and uncertainty in degrees."""
+    roll, pitch, yaw = est.euler_deg
+    return (
+        f"t={est.t_ns / 1e9:12.6f} s  roll={roll:8.3f}  pitch={pitch:8.3f}  yaw={yaw:8.3f} deg"
+        f"  +/-{est.uncertainty_deg:.3f} deg"
+    )
+
+
+def listen(
+    config: zenoh.Config, vehicle: str, json_output: bool = False, count: int | None = None, out: TextIO = sys.stdout
+) -> int:
+    """Print arriving estimates, one line each (raw JSON with ``json_output``), until ``count`` or Ctrl-C.
+
+    Returns how many were printed.
+    """
+    arrived: queue.Queue[bytes] = queue.Queue()
+    printed = 0
+    with Subscription(config, vehicle, {"attitude": arrived.put}):
+        try:
+            while count is None or printed < count:
+                payload = arrived.get()
+                line = payload.decode() if json_output else format_estimate(Estimate.from_dict(json.loads(payload)))
+                print(line, file=out, flush=True)
+                printed += 1
+        except KeyboardInterrupt:
+            pass
+    return printed
