@@ -1,0 +1,157 @@
+"""zenoh: estimates reach a subscriber in another process intact, across subscriber restarts and failures."""
+
+from __future__ import annotations
+
+import io
+import json
+import logging
+import random
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from fuser.codec import Estimate
+from fuser.publish import ZenohPublisher, format_estimate, listen, subscribe, zenoh_config
+
+EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "subscribe.py"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(condition: Callable[[], bool], timeout: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.005)
+
+
+def estimates(n: int, seed: int) -> list[Estimate]:
+    rng = random.Random(seed)
+    out = []
+    for i in range(n):
+        m = tuple(tuple(rng.uniform(-1, 1) for _ in range(4)) for _ in range(4))
+        q = tuple(rng.uniform(-1, 1) for _ in range(4))
+        z = (0.0, -rng.uniform(1, 1e5), -1e5, -2e5)
+        e = (rng.uniform(-180, 180), rng.uniform(-90, 90), rng.uniform(-180, 180))
+        out.append(Estimate(10_000_000 * (seed * 1000 + i), q, m, z, rng.random(), e, {"ticks": i, "late": seed}))
+    return out
+
+
+@pytest.fixture
+def endpoint() -> str:
+    return f"tcp/127.0.0.1:{free_port()}"
+
+
+@pytest.fixture
+def publisher(endpoint: str):
+    pub = ZenohPublisher(zenoh_config(listen=[endpoint]), "v1")
+    yield pub
+    pub.close()
+
+
+def start_example(endpoint: str, count: int) -> subprocess.Popen[str]:
+    """The example subscriber in another process, printing raw JSON; returns once it has subscribed."""
+    proc = subprocess.Popen(
+        [sys.executable, str(EXAMPLE), "--connect", endpoint, "--vehicle", "v1", "--raw", "--count", str(count)],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "subscribed"
+    return proc
+
+
+def send_to(proc: subprocess.Popen[str], pub: ZenohPublisher, sent: list[Estimate]) -> list[Estimate]:
+    """Publish ``sent`` once ``proc`` matches, return what it printed."""
+    wait_for(lambda: pub.has_subscribers)
+    for est in sent:
+        pub.publish_estimate(est)
+    out, _ = proc.communicate(timeout=10)
+    assert proc.returncode == 0
+    return [Estimate.from_dict(json.loads(line)) for line in out.splitlines()]
+
+
+def test_estimates_reach_another_process_intact_across_restarts(publisher: ZenohPublisher, endpoint: str) -> None:
+    first = estimates(50, seed=1)
+    assert send_to(start_example(endpoint, 50), publisher, first) == first
+
+    # The subscriber is gone: publishing goes on without error.
+    wait_for(lambda: not publisher.has_subscribers)
+    for est in estimates(20, seed=2):
+        publisher.publish_estimate(est)
+
+    # A killed subscriber does not hurt the publisher either.
+    victim = start_example(endpoint, 1000)
+    wait_for(lambda: publisher.has_subscribers)
+    victim.kill()
+    victim.communicate()
+    for est in estimates(20, seed=3):
+        publisher.publish_estimate(est)
+
+    second = estimates(30, seed=4)
+    assert send_to(start_example(endpoint, 30), publisher, second) == second
+    assert publisher.errors == 0 and publisher.published == 50 + 20 + 20 + 30
+
+
+def test_subscribe_and_listen_in_process(publisher: ZenohPublisher, endpoint: str) -> None:
+    got: list[Estimate] = []
+    statuses: list[dict] = []
+    sent = estimates(5, seed=5)
+    with subscribe(zenoh_config(connect=[endpoint]), "*", got.append, statuses.append):
+        wait_for(lambda: publisher.has_subscribers)
+        for est in sent:
+            publisher.publish_estimate(est)
+        publisher.publish_status({"ticks": 5, "recorder_alive": False})
+        wait_for(lambda: len(got) == 5 and len(statuses) == 1)
+    assert got == sent
+    assert statuses == [{"ticks": 5, "recorder_alive": False}]
+
+    # listen() prints one line per estimate; publish until it has printed 3 (its session connects when it can).
+    out = io.StringIO()
+    listener = threading.Thread(target=listen, args=(zenoh_config(connect=[endpoint]), "v1"), kwargs={"count": 3, "out": out})
+    listener.start()
+    stream = estimates(1000, seed=6)
+    for est in stream:
+        if not listener.is_alive():
+            break
+        publisher.publish_estimate(est)
+        time.sleep(0.01)
+    listener.join(1)
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 3 and not listener.is_alive()
+    first = [format_estimate(e) for e in stream].index(lines[0])
+    assert lines == [format_estimate(e) for e in stream[first : first + 3]]
+    roll, _, yaw = stream[first].euler_deg
+    assert f"roll={roll:8.3f}" in lines[0] and f"yaw={yaw:8.3f}" in lines[0]
+    assert f"+/-{stream[first].uncertainty_deg:.3f} deg" in lines[0]
+
+
+def test_publisher_that_cannot_open_counts_and_says_so_once(endpoint: str, caplog: pytest.LogCaptureFixture) -> None:
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", int(endpoint.rsplit(":", 1)[1])))
+        busy.listen()
+        with caplog.at_level(logging.ERROR, logger="fuser.publish"):
+            pub = ZenohPublisher(zenoh_config(listen=[endpoint]), "v1")
+            for est in estimates(3, seed=6):
+                pub.publish_estimate(est)
+            pub.publish_status({})
+            pub.close()
+    assert pub.errors == 1 + 4 and pub.published == 0 and not pub.has_subscribers
+    assert "cannot open the zenoh session" in (pub.error or "")
+    assert len(caplog.records) == 1
+
+
+def test_config_defaults_listen_on_loopback_only_when_not_connecting() -> None:
+    default = json.loads(zenoh_config().get_json("listen/endpoints"))
+    assert default == ["tcp/127.0.0.1:7447"]
+    assert json.loads(zenoh_config(connect=["tcp/10.0.0.1:7447"]).get_json("listen/endpoints")) == []
+    assert json.loads(zenoh_config().get_json("scouting/multicast/enabled")) is False
