@@ -5,6 +5,7 @@
     bingham-fuser replay flight.mcap -o fused.mcap
     bingham-fuser listen
     bingham-fuser report fused.mcap -o report/
+    bingham-fuser import trial.hdf5 -o trial.mcap   (BROAD trial or PX4 .ulg -> MCAP)
 
 Every setting can also come from a TOML file (``--config``); flags win.
 """
@@ -67,6 +68,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default: 0)")
     p.add_argument("--imu-rate", type=float, default=400.0, metavar="HZ", help="IMU rate (default: 400)")
     p.add_argument("-o", "--record", default="sim.mcap", metavar="FILE.mcap", help="record inputs, truth and estimates here (default: sim.mcap; '' to disable)")
+    g = p.add_argument_group("send to a live fuser", "be the vehicle on the far end of a real link instead of running the loop here")
+    g.add_argument("--send", metavar="CONN", help="send the flight's MAVLink in real time to this pymavlink connection, e.g. udpout:127.0.0.1:14550")
+    g.add_argument("--send-can", metavar="IFACE:CHANNEL", help="send its DroneCAN frames to this python-can bus")
+    g.add_argument("--truth", metavar="FILE", help="write the true attitude at the sender's times (.npz or .mcap)")
+    g.add_argument("--start-at", type=float, metavar="UNIX_TIME", help="send the first sample at this time (keeps several senders in step; default: now)")
+    g.add_argument("--outage", metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
+    g.add_argument("--garbage", type=float, default=0.0, metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
 
     p = sub.add_parser("run", help="fuse live MAVLink and/or DroneCAN input",
                        description="Fuse live input. MAVLink CONN is anything pymavlink opens: udpin:0.0.0.0:14550, "
@@ -88,6 +96,19 @@ def _parser() -> argparse.ArgumentParser:
     _common(p)
     p.add_argument("log", help="input log (.mcap or .tlog)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
+
+    p = sub.add_parser("import", help="convert a BROAD trial (.hdf5) or a PX4 ULog (.ulg) into a replayable MCAP",
+                       description="Encode a real log's IMU (and a PX4 log's EKF2 attitude) as MAVLink, decode it with the "
+                                   "project's driver and record an MCAP with the truth / reference attitude on /truth/pose. "
+                                   "Needs h5py (BROAD) or pyulog (PX4): pip install 'bingham-fuser[import]'. See fuser/importers.py.")
+    _common(p)
+    p.add_argument("source", help="BROAD trial .hdf5 or PX4 .ulg")
+    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP to write")
+    p.add_argument("--format", choices=("broad", "px4"), help="input format (default: from the file extension)")
+    p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds (default: 0)")
+    p.add_argument("--duration", type=float, metavar="S", help="keep only S seconds (default: all)")
+    p.add_argument("--config-out", metavar="FILE.toml", help="TOML with the measured reference field, for replay --config "
+                   "(default: OUT.toml beside the MCAP; '' to skip)")
 
     p = sub.add_parser("listen", help="print the estimates arriving on zenoh", description="Subscribe to bingham_fuser/<vehicle>/attitude and print each estimate.")
     _common(p)
@@ -132,6 +153,10 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.record import McapRecorder, RecorderProcess
     from fuser.simulate import run_sim
 
+    if args.send or args.send_can:
+        from fuser.sender import run_sender
+
+        return run_sender(args, _stop_on_signal())
     with ExitStack() as stack:
         pub = _publisher(stack, config, args)
         rec = None
@@ -217,6 +242,31 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     return 0
 
 
+def _cmd_import(args: argparse.Namespace, config: FuserConfig) -> int:  # noqa: ARG001
+    from fuser.importers import detect_format, import_log
+
+    try:
+        fmt = args.format or detect_format(args.source)
+    except ValueError as exc:
+        print(f"import: {exc}", file=sys.stderr)
+        return 2
+    module = {"broad": "h5py", "px4": "pyulog"}[fmt]
+    try:
+        __import__(module)
+    except ImportError:
+        print(f"import: reading {fmt} logs needs the '{module}' package: pip install 'bingham-fuser[import]' "
+              f"(or pip install {module})", file=sys.stderr)
+        return 2
+    cfg_out = str(Path(args.output).with_suffix(".toml")) if args.config_out is None else (args.config_out or None)
+    s = import_log(args.source, args.output, fmt, args.start, args.duration, cfg_out)
+    print(f"import: {s.imu} IMU + {s.attitude} attitude messages through MAVLink, {s.truth} reference attitudes -> {s.path}")
+    print(f"reference field (N, E, D gauss): {s.mag_field_ned_gauss}" + (f"; replay with --config {s.config_path}" if s.config_path else ""))
+    refused = {k: v for k, v in s.decoder_stats.items() if k != "accepted" and v}
+    if refused:
+        print(f"decoder refused: {refused}")
+    return 0
+
+
 def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.publish import listen, zenoh_config
 
@@ -267,7 +317,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (OSError, ValueError) as exc:
         print(f"bingham-fuser: {exc}", file=sys.stderr)
         return 2
-    commands = {"sim": _cmd_sim, "run": _cmd_run, "replay": _cmd_replay, "listen": _cmd_listen, "report": _cmd_report}
+    commands = {"sim": _cmd_sim, "run": _cmd_run, "replay": _cmd_replay, "listen": _cmd_listen, "report": _cmd_report,
+                "import": _cmd_import}
     return commands[args.command](args, config)
 
 
