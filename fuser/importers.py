@@ -47,9 +47,9 @@ PX4 ULog (``sensor_combined``, ``vehicle_attitude``)
 
 Reference field
     The fuser wants ``mag_field_ned_gauss`` (north, east, down). For BROAD it
-    is measured from the data itself, causally: the mean accelerometer and
-    magnetometer over the first ``field_rest_s`` seconds (every BROAD trial
-    starts at rest) give the field's norm and dip; its horizontal part is
+    is measured from the data itself, causally: the per-sample magnetometer
+    norm and dip (against the accelerometer's down) averaged over the first
+    ``field_rest_s`` seconds (every BROAD trial starts at rest); its horizontal part is
     put on magnetic north (declination 0: BROAD's ENU frame is the
     magnetometer's). For PX4 it is EKF2's own earth-field state
     (``estimator_status.states[16:19]``, gauss NED, median over the log) when
@@ -164,12 +164,18 @@ def broad_quat_from_ned(q_nb: np.ndarray) -> np.ndarray:
 
 
 def field_from_rest(accel: np.ndarray, mag: np.ndarray) -> tuple[float, float, float]:
-    """Reference field (N, E, D gauss) from body-frame samples at rest: norm and dip, declination 0."""
-    a = np.mean(accel, axis=0)
-    m = np.mean(mag, axis=0)
-    down = -a / np.linalg.norm(a)  # the accelerometer reads the reaction to gravity
-    norm = float(np.linalg.norm(m))
-    dip = math.asin(max(-1.0, min(1.0, float(m @ down) / norm)))
+    """Reference field (N, E, D gauss) from body-frame samples: mean norm and mean dip, declination 0.
+
+    Norm and dip (angle below the horizontal, from the accelerometer's down)
+    are computed per sample and then averaged, so slow rotation during the
+    window does not bias them (a mean of vectors would).
+    """
+    a = np.asarray(accel, dtype=float)
+    m = np.asarray(mag, dtype=float)
+    down = -a / np.linalg.norm(a, axis=1)[:, None]  # the accelerometer reads the reaction to gravity
+    norms = np.linalg.norm(m, axis=1)
+    dips = np.arcsin(np.clip(np.sum(m * down, axis=1) / norms, -1.0, 1.0))
+    norm, dip = float(np.mean(norms)), float(np.mean(dips))
     return (norm * math.cos(dip), 0.0, norm * math.sin(dip))
 
 
