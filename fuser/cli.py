@@ -62,7 +62,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds of flight (default: 60)")
     p.add_argument("--scenario", choices=("full",) + tuple(SCENARIOS), default="full",
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
-                        + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()))
+                        + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()).replace("%", "%%"))  # argparse %-formats help
     p.add_argument("--speed", type=float, default=1.0, metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
     p.add_argument("--transport", choices=("mavlink", "dronecan"), default="mavlink", help="what the vehicle speaks (default: mavlink)")
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default: 0)")
