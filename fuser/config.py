@@ -26,10 +26,13 @@ class FuserConfig:
     """How long a tick waits after its due time for samples still in flight."""
     gyro_noise_rad_s_rt_hz: float = 3e-4
     """Gyro white-noise density."""
-    gyro_bias_rad_s: float = 0.002
-    """Gyro bias left after estimation, treated as extra process noise."""
+    gyro_bias_rad_s: float = 0.005
+    """Uncertainty of the gyro bias before it has been learnt (one sigma, per axis)."""
+    gyro_bias_floor_rad_s: float = 0.001
+    """Uncertainty the bias estimate settles to while it is being learnt."""
     bias_time_constant_s: float = 10.0
-    """Time constant of the gyro bias estimate (0 disables bias estimation)."""
+    """Time constant of the gyro bias estimate (0 disables bias estimation); also the
+    correlation time of the residual bias in the process noise."""
     bias_learn_max_rate_rad_s: float = 1.0
     """The bias is learnt only in ticks rotating slower than this, with a trusted accelerometer."""
     gyro_scale_error: float = 0.01
@@ -38,20 +41,24 @@ class FuserConfig:
     """Assumed rotation rate while no gyro data arrives: how fast uncertainty grows in a gap."""
     max_gyro_dt_s: float = 0.1
     """Longer gaps between two gyro samples of one IMU are not integrated."""
-    accel_sigma_rad: float = 0.05
+    accel_sigma_rad: float = 0.1
     """Direction noise of the gravity measurement."""
     accel_gate: float = 0.2
     """Reject the accelerometer when | |f| - g | / g exceeds this (manoeuvres, impacts)."""
     accel_norm_filter_s: float = 0.3
     """Time constant of the low-pass on the specific-force norm (separates vibration from sustained acceleration)."""
-    accel_rate_inflation_s: float = 2.0
+    accel_rate_inflation_s: float = 5.0
     """Sigma also grows by this factor times the rotation rate (rad/s): turns carry centripetal acceleration."""
+    innovation_gate_sigma: float = 3.0
+    """Reject a gravity or heading reading further than this many sigma (sensor and state) from the prediction."""
+    innovation_reanchor_s: float = 0.5
+    """After this long of continuous rejections the reading is accepted again, so a wrong state can recover."""
     use_mag: bool = True
     mag_sigma_rad: float = 0.05
     """Heading noise of the magnetometer."""
     mag_field_ned_gauss: tuple[float, float, float] = (0.21, 0.0, 0.43)
     """Expected earth field (north, east, down): reference for heading, norm and dip gates."""
-    mag_norm_gate: float = 0.25
+    mag_norm_gate: float = 0.1
     """Reject the magnetometer when its norm departs from the expected one by this fraction."""
     mag_dip_gate_deg: float = 10.0
     """Reject the magnetometer when its dip departs from the expected one by this much."""

@@ -32,6 +32,7 @@ GRAVITY_M_S2 = 9.80665
 _DOWN = np.array([0.0, 0.0, 1.0])
 _MIN_VARIANCE = 1e-18  # caps the noise concentration at 2e18 for a zero-length tick
 _BIAS_LEARN_MAX_UNCERTAINTY_DEG = 5.0
+_DEFAULT_BIAS_CORRELATION_S = 10.0
 _MAX_BIAS = 0.2  # rad/s: beyond any MEMS gyro's bias; stops a wrong start from running away
 
 
@@ -60,9 +61,12 @@ class FusionModel:
         self._field_heading = math.atan2(field[1], field[0])
         self._tilt_known = False
         self.gyro_bias = np.zeros(3)
+        self.bias_variance = config.gyro_bias_rad_s**2
         self._rate = 0.0
         self._accel_trusted = False
         self._norm_error = 0.0
+        self._dt = 0.0
+        self._rejected_s: Counter[str] = Counter()
 
     # -- one tick ---------------------------------------------------------------
     def step(self, samples: list[Sample], dt_ns: int, t_ns: int) -> Estimate:
@@ -71,6 +75,7 @@ class FusionModel:
         self._accel_trusted = False
         self._predict(imu, dt_ns)
         predicted = self.filter.estimate
+        prior_doubt_deg = rms_angle_deg(self.filter.state, self.filter.method)
         if imu:
             self._update_gravity(np.mean([s.accel_m_s2 for s in imu], axis=0), dt_ns * 1e-9)
         mags = [s.mag_gauss for s in samples if isinstance(s, MagSample)] + [s.mag_gauss for s in imu if s.mag_gauss is not None]
@@ -80,10 +85,10 @@ class FusionModel:
             for s in samples:
                 if isinstance(s, AttitudeSample):
                     self._update_attitude(s.q_wxyz)
-        self._learn_bias(predicted)
+        self._learn_bias(predicted, prior_doubt_deg)
         return self._estimate(t_ns)
 
-    def _learn_bias(self, predicted: np.ndarray) -> None:
+    def _learn_bias(self, predicted: np.ndarray, prior_doubt_deg: float) -> None:
         """Integral feedback of the tick's correction into the gyro bias (Mahony-style).
 
         A bias error ``e`` makes the prediction drift by ``e dt`` per tick, which
@@ -96,20 +101,28 @@ class FusionModel:
         cfg = self.config
         if cfg.bias_time_constant_s <= 0 or not self._accel_trusted or self._rate > cfg.bias_learn_max_rate_rad_s:
             return
-        if rms_angle_deg(self.filter.state, self.filter.method) > _BIAS_LEARN_MAX_UNCERTAINTY_DEG:
-            return  # still converging from the uniform start: corrections are not drift
+        if prior_doubt_deg > _BIAS_LEARN_MAX_UNCERTAINTY_DEG:
+            return  # the prediction was a guess (uniform start, after a gap): its correction is not drift
         correction = quat.to_rotvec(quat.multiply(quat.conjugate(predicted), self.filter.estimate))
         self.gyro_bias = np.clip(self.gyro_bias - correction / cfg.bias_time_constant_s, -_MAX_BIAS, _MAX_BIAS)
+        # learning for a tick shrinks the bias uncertainty towards its floor with the same time constant
+        decay = min(1.0, self._dt / cfg.bias_time_constant_s)
+        self.bias_variance += decay * (cfg.gyro_bias_floor_rad_s**2 - self.bias_variance)
 
     def _predict(self, imu: list[ImuSample], dt_ns: int) -> None:
         cfg = self.config
-        dt = dt_ns * 1e-9
+        dt = self._dt = dt_ns * 1e-9
         rates = []
         for source in sorted({s.source for s in imu}, key=repr):
             rotvec, covered = self._integrate(sorted((s for s in imu if s.source == source), key=lambda s: s.t_ns))
             if covered > 0.0:
                 rates.append(rotvec / covered - self.gyro_bias)
-        variance = cfg.gyro_noise_rad_s_rt_hz**2 * dt + (cfg.gyro_bias_rad_s * dt) ** 2
+        # A bias error persists: over the correlation time tau it turns the
+        # attitude by e*tau, the same as white noise of variance e^2 tau dt per
+        # tick; (e dt)^2 would understate it by tau/dt and make the filter
+        # overconfident (and the bias loop underdamped).
+        correlation_s = cfg.bias_time_constant_s if cfg.bias_time_constant_s > 0 else _DEFAULT_BIAS_CORRELATION_S
+        variance = cfg.gyro_noise_rad_s_rt_hz**2 * dt + self.bias_variance * correlation_s * dt
         if rates:
             rate = np.mean(rates, axis=0)
             self._rate = float(np.linalg.norm(rate))
@@ -166,6 +179,10 @@ class FusionModel:
             self.counters["accel_gated"] += 1
             return
         sigma = math.sqrt(cfg.accel_sigma_rad**2 + 2.0 * error) * (1.0 + cfg.accel_rate_inflation_s * self._rate)
+        predicted_down = quat.rotate(quat.conjugate(self.filter.estimate), _DOWN)
+        innovation = math.acos(max(-1.0, min(1.0, float(-accel @ predicted_down) / norm)))
+        if self._tilt_known and not self._innovation_ok("accel", innovation, sigma):
+            return
         # the accelerometer measures -g: its negative is world down seen in the body
         self.filter.state = self.filter.state.times_exponent(vector_exponent(-accel, _DOWN, sigma))
         self._tilt_known = True
@@ -188,7 +205,25 @@ class FusionModel:
             return
         error = self._field_heading - math.atan2(m_world[1], m_world[0])
         error = math.remainder(error, 2.0 * math.pi)
+        if not self._innovation_ok("mag", abs(error), self.config.mag_sigma_rad):
+            return
         self.filter.state = self.filter.state.times_exponent(heading_exponent(q, error, self.config.mag_sigma_rad))
+
+    def _innovation_ok(self, sensor: str, innovation_rad: float, sigma_rad: float) -> bool:
+        """Chi-style gate: accept a reading within ``k`` sigma of the prediction (sensor and state
+        uncertainty combined), or after ``innovation_reanchor_s`` of continuous rejections."""
+        cfg = self.config
+        state_sigma = math.radians(rms_angle_deg(self.filter.state, self.filter.method))
+        if innovation_rad <= cfg.innovation_gate_sigma * math.hypot(sigma_rad, state_sigma):
+            self._rejected_s[sensor] = 0.0
+            return True
+        self._rejected_s[sensor] += self._dt
+        if self._rejected_s[sensor] >= cfg.innovation_reanchor_s:
+            self._rejected_s[sensor] = 0.0
+            self.counters[f"{sensor}_reanchored"] += 1
+            return True
+        self.counters[f"{sensor}_gated_innovation"] += 1
+        return False
 
     def _update_attitude(self, q_wxyz: tuple[float, float, float, float]) -> None:
         sigma = math.radians(self.config.attitude_sigma_deg or 0.0)

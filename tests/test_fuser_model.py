@@ -1,0 +1,134 @@
+"""The fusion model on controlled inputs with a known answer."""
+
+import math
+
+import numpy as np
+import pytest
+
+from core import quaternion as quat
+from drivers.samples import AttitudeSample, ImuSample, MagSample, SourceId
+from fuser.config import FuserConfig
+from fuser.model import GRAVITY_M_S2, FusionModel
+
+SRC = SourceId("sim", 1, 1, 0)
+FIELD = np.array([0.21, 0.0, 0.43])
+TICK = 10_000_000  # 100 Hz
+
+
+def imu_at(q, t_ns, gyro=(0.0, 0.0, 0.0), accel_extra=(0.0, 0.0, 0.0), mag=True, mag_extra=(0.0, 0.0, 0.0)):
+    """A perfect IMU reading of attitude q (body FRD -> NED): specific force of a body at rest."""
+    f = quat.rotate(quat.conjugate(q), [0.0, 0.0, -GRAVITY_M_S2]) + np.asarray(accel_extra)
+    m = quat.rotate(quat.conjugate(q), FIELD) + np.asarray(mag_extra) if mag else None
+    return ImuSample(t_ns, tuple(gyro), tuple(f), None if m is None else tuple(m), SRC)
+
+
+def run_static(model, q, ticks, **kw):
+    est = None
+    for k in range(ticks):
+        est = model.step([imu_at(q, (k + 1) * TICK, **kw)], TICK, (k + 1) * TICK)
+    return est
+
+
+@pytest.mark.parametrize("q", [quat.IDENTITY, quat.from_rotvec([0.3, -0.5, 2.0]), quat.from_rotvec([2.5, 0.4, -1.0])])
+def test_converges_from_uniform_to_a_static_attitude(q):
+    model = FusionModel(FuserConfig())
+    first = model.step([], TICK, TICK)
+    assert first.uncertainty_deg > 50  # uniform start: no prior knowledge
+    est = run_static(model, q, 300)
+    assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 0.5
+    assert est.uncertainty_deg < 3.0
+
+
+def test_without_magnetometer_heading_stays_unknown():
+    model = FusionModel(FuserConfig(use_mag=False))
+    est = run_static(model, quat.from_rotvec([0.2, 0.1, 1.0]), 200)
+    Z = np.array(est.Z)
+    assert Z[2] > -1e-6 and Z[0] < -100  # two tilt axes known, rotation about down free
+
+
+def test_gyro_integration_follows_a_constant_rotation():
+    """No observations (accel gated, no mag): the estimate rotates by the integrated rate."""
+    model = FusionModel(FuserConfig(bias_time_constant_s=0))
+    q0 = quat.from_rotvec([0.1, 0.2, 0.3])
+    run_static(model, q0, 200)  # heading from the magnetometer, then none while turning
+    rate = np.array([0.3, -0.2, 0.5])
+    q = q0
+    for k in range(200, 300):  # 1 s at 400 Hz gyro in 100 Hz ticks, free fall so the accelerometer is gated
+        samples = [ImuSample(k * TICK + j * 2_500_000, tuple(rate), (0.0, 0.0, 0.0), None, SRC) for j in range(1, 5)]
+        est = model.step(samples, TICK, (k + 1) * TICK)
+    q = quat.multiply(q0, quat.from_rotvec(rate * 1.0))
+    assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 0.2
+    assert model.counters["accel_gated"] >= 100
+
+
+def test_accelerometer_during_manoeuvre_is_gated_or_distrusted():
+    model = FusionModel(FuserConfig())
+    q = quat.from_rotvec([0.1, 0.0, 0.0])
+    run_static(model, q, 200)
+    before = model.counters["accel_gated"]
+    model.step([imu_at(q, 201 * TICK, accel_extra=(0.0, 0.0, -8.0))], TICK, 201 * TICK)  # 1.8 g impact
+    assert model.counters["accel_gated"] == before + 1
+
+
+def test_magnet_near_the_sensor_does_not_drag_the_heading():
+    model = FusionModel(FuserConfig())
+    q = quat.from_rotvec([0.0, 0.0, 0.8])
+    run_static(model, q, 300)
+    est = run_static(model, q, 300, mag_extra=(0.3, -0.3, 0.0))  # a field stronger than the earth's
+    assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 1.0
+    assert model.counters["mag_gated_norm"] + model.counters["mag_gated_dip"] >= 290
+
+
+def test_learns_a_constant_gyro_bias():
+    bias = np.array([0.01, -0.02, 0.015])
+    model = FusionModel(FuserConfig(bias_time_constant_s=5.0))
+    q = quat.from_rotvec([0.1, -0.1, 0.4])
+    run_static(model, q, 100)
+    run_static(model, q, 3000, gyro=tuple(bias))  # 30 s at rest
+    np.testing.assert_allclose(model.gyro_bias, bias, atol=0.002)
+
+
+def test_autopilot_attitude_is_an_identity_measurement_when_configured():
+    q_ap = quat.from_rotvec([0.3, 0.2, -1.0])
+    for sigma, expect_used in ((None, False), (2.0, True)):
+        model = FusionModel(FuserConfig(attitude_sigma_deg=sigma))
+        for k in range(50):
+            est = model.step([AttitudeSample((k + 1) * TICK, tuple(q_ap), SRC)], TICK, (k + 1) * TICK)
+        assert (math.degrees(quat.angular_distance(est.q_wxyz, q_ap)) < 1.0) == expect_used
+
+
+def test_separate_magnetometer_samples_are_used():
+    model = FusionModel(FuserConfig())
+    q = quat.from_rotvec([0.0, 0.1, -2.0])
+    for k in range(300):
+        t = (k + 1) * TICK
+        imu = imu_at(q, t, mag=False)
+        mag = MagSample(t, tuple(quat.rotate(quat.conjugate(q), FIELD)), SourceId("dronecan", 10, 0, 0))
+        est = model.step([imu, mag], TICK, t)
+    assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 0.5
+
+
+def test_two_imus_are_fused():
+    """Two IMUs with opposite gyro biases: the average rate cancels them."""
+    model = FusionModel(FuserConfig(bias_time_constant_s=0))
+    a, b = SourceId("mavlink", 1, 1, 0), SourceId("mavlink", 1, 1, 1)
+    q0 = quat.IDENTITY
+    run_static(model, q0, 100)
+    for k in range(100, 200):
+        t0 = k * TICK
+        s = []
+        for j in range(1, 5):
+            s.append(ImuSample(t0 + j * 2_500_000, (0.0, 0.0, 0.5 + 0.05), (0.0, 0.0, 0.0), None, a))
+            s.append(ImuSample(t0 + j * 2_500_000, (0.0, 0.0, 0.5 - 0.05), (0.0, 0.0, 0.0), None, b))
+        est = model.step(s, TICK, t0 + TICK)
+    assert math.degrees(quat.angular_distance(est.q_wxyz, quat.from_rotvec([0.0, 0.0, 0.5]))) < 0.2
+
+
+def test_gap_without_gyro_grows_uncertainty():
+    model = FusionModel(FuserConfig())
+    run_static(model, quat.IDENTITY, 200)
+    gaps_before = model.counters["no_gyro"]
+    before = model.step([], TICK, 201 * TICK).uncertainty_deg
+    for k in range(202, 300):
+        after = model.step([], TICK, k * TICK).uncertainty_deg
+    assert after > before + 5 and model.counters["no_gyro"] == gaps_before + 99
