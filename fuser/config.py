@@ -26,11 +26,11 @@ class FuserConfig:
     """How long a tick waits after its due time for samples still in flight."""
     gyro_noise_rad_s_rt_hz: float = 3e-4
     """Gyro white-noise density."""
-    gyro_bias_rad_s: float = 0.005
+    gyro_bias_rad_s: float = 0.015
     """Uncertainty of the gyro bias before it has been learnt (one sigma, per axis)."""
     gyro_bias_floor_rad_s: float = 0.001
     """Uncertainty the bias estimate settles to while it is being learnt."""
-    bias_time_constant_s: float = 10.0
+    bias_time_constant_s: float = 5.0
     """Time constant of the gyro bias estimate (0 disables bias estimation); also the
     correlation time of the residual bias in the process noise."""
     bias_learn_max_rate_rad_s: float = 1.0
