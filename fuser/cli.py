@@ -72,7 +72,8 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--send", metavar="CONN", help="send the flight's MAVLink in real time to this pymavlink connection, e.g. udpout:127.0.0.1:14550")
     g.add_argument("--send-can", metavar="IFACE:CHANNEL", help="send its DroneCAN frames to this python-can bus")
     g.add_argument("--truth", metavar="FILE", help="write the true attitude at the sender's times (.npz or .mcap)")
-    g.add_argument("--start-at", type=float, metavar="UNIX_TIME", help="send the first sample at this time (keeps several senders in step; default: now)")
+    g.add_argument("--start-at", metavar="UNIX_TIME|+S", help="send the first sample at this Unix time (keeps several senders in step), "
+                   "or S seconds after the flight is ready (default: +0.2); the time chosen is printed")
     g.add_argument("--outage", metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
     g.add_argument("--garbage", type=float, default=0.0, metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
 
@@ -219,7 +220,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
             if rec is not None:
                 out["recorder"] = {"alive": rec.alive, "dropped": rec.dropped}
             if pub is not None:
-                out["publisher"] = {"errors": pub.errors}
+                out["publisher"] = {"errors": pub.errors, "subscribed": pub.has_subscribers}
             return out
 
         runner = LiveRunner(pipeline, sources, status_sinks, health)

@@ -20,8 +20,9 @@ from typing import Callable, Iterable
 import numpy as np
 
 from drivers.base import SampleSource
-from drivers.samples import Sample
+from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
+from fuser.model import FusionModel
 from fuser.pipeline import Pipeline
 
 __all__ = ["LiveRunner"]
@@ -29,8 +30,12 @@ __all__ = ["LiveRunner"]
 log = logging.getLogger("bingham_fuser.live")
 
 
+STALL_NS = 500_000_000
+"""A source silent this long after it has delivered is counted once as a stall (link down, sender gone)."""
+
+
 class _SourceThread(threading.Thread):
-    """Polls one source until stopped; a failing poll is counted, logged and retried."""
+    """Polls one source until stopped; a failing poll is counted, logged and retried; silences are counted as stalls."""
 
     def __init__(self, name: str, source: SampleSource, out: queue.Queue, stop: threading.Event) -> None:
         super().__init__(name=f"source-{name}", daemon=True)
@@ -39,6 +44,13 @@ class _SourceThread(threading.Thread):
         self.out = out
         self.stop = stop
         self.errors = 0
+        self.stalls = 0
+        self.last_sample_ns: int | None = None
+        self._stalled = False
+
+    def health(self, now_ns: int) -> dict:
+        silent = None if self.last_sample_ns is None else round((now_ns - self.last_sample_ns) / 1e9, 3)
+        return {"poll_errors": self.errors, "stalls": self.stalls, "silent_s": silent}
 
     def run(self) -> None:
         while not self.stop.is_set():
@@ -51,8 +63,25 @@ class _SourceThread(threading.Thread):
                 self.stop.wait(0.1)
                 continue
             now = time.monotonic_ns()
+            if samples:
+                self.last_sample_ns, self._stalled = now, False
+            elif not self._stalled and self.last_sample_ns is not None and now - self.last_sample_ns > STALL_NS:
+                self._stalled = True
+                self.stalls += 1
+                log.warning("source %s silent for %.1f s (stall %d)", self.label, (now - self.last_sample_ns) / 1e9, self.stalls)
             for s in samples:
                 self.out.put((s, now))
+
+
+def _warm_up(pipeline: Pipeline) -> None:
+    """Run a few ticks on a throwaway model so that loading the compiled kernels (about 0.3 s) is not the first live tick's latency."""
+    model = FusionModel(pipeline.loop.config)
+    src = SourceId("warm-up", 0, 0, 0)
+    for k in range(4):
+        t = (k + 1) * 10_000_000
+        imu = [] if k == 3 else [ImuSample(t - 5_000_000, (0.01, 0.0, 0.0), (0.0, 0.0, -9.8), (0.21, 0.0, 0.43), src),
+                                 ImuSample(t, (0.01, 0.0, 0.0), (0.0, 0.0, -9.8), (0.21, 0.0, 0.43), src)]
+        model.step([*imu, AttitudeSample(t, (1.0, 0.0, 0.0, 0.0), src)], 10_000_000, t)
 
 
 class LiveRunner:
@@ -89,13 +118,14 @@ class LiveRunner:
 
     def status(self) -> dict:
         """Health and counters, as published on ``.../status`` and recorded on ``/status``."""
+        now = time.monotonic_ns()
         lat = np.array(self.latencies_ns, dtype=float) / 1e6
         latency = {} if lat.size == 0 else {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max())}
         return {
             "estimates": self.pipeline.estimates,
             "loop": dict(self.pipeline.loop.counters),
             "model": dict(self.pipeline.loop.model.counters),
-            "sources": {name: {**dict(src.stats), "poll_errors": t.errors} for (name, src), t in zip(self.sources.items(), self._threads)},
+            "sources": {name: {**dict(src.stats), **t.health(now)} for (name, src), t in zip(self.sources.items(), self._threads)},
             "runner": dict(self.counters),
             "latency": latency,
             **self.health(),
@@ -103,6 +133,7 @@ class LiveRunner:
 
     def run(self, duration_s: float | None = None) -> dict:
         """Run until stopped (or for ``duration_s``); returns the final status."""
+        _warm_up(self.pipeline)
         for t in self._threads:
             t.start()
         start = time.monotonic_ns()

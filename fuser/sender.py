@@ -191,7 +191,8 @@ def run_sender(args: Any, stop: Callable[[], bool]) -> int:
 
         interface, _, channel = args.send_can.partition(":")
         bus = can.Bus(interface=interface, channel=channel)
-    start_at = args.start_at if args.start_at is not None else time.time() + 0.2
+    start = args.start_at or "+0.2"
+    start_at = time.time() + float(start[1:]) if start.startswith("+") else float(start)
     seconds = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
     print(f"sim --send: {args.scenario} flight, {seconds:.1f} s at {args.imu_rate:g} Hz to "
           f"{', '.join(x for x in (args.send, args.send_can) if x)}; first sample at {start_at:.6f}", file=sys.stderr, flush=True)
