@@ -33,7 +33,7 @@ from fuser.sender import SendFaults, send_flight
 
 ROOT = Path(__file__).resolve().parent.parent
 FUSER = [sys.executable, "-m", "fuser.cli"]
-LEAD_S = 2.0
+LEAD_S = 3.0
 """From the sender being ready to its first sample: time to start the fuser and the subscriber."""
 IMU_HZ = 200.0
 
