@@ -132,9 +132,14 @@ class Bingham:
         finite, symmetric, positive semidefinite and of trace 1.
         """
         S = _check_inertia(S)
+        if np.linalg.eigvalsh(S)[0] < -_INERTIA_TOL:
+            raise ValueError(f"inertia matrix is not positive semidefinite (eigenvalue {np.linalg.eigvalsh(S)[0]:.3g})")
+        return cls._fit_trusted(S, method)
+
+    @classmethod
+    def _fit_trusted(cls, S: NDArray[np.float64], method: Method) -> Bingham:
+        """:meth:`fit` without validation, for inertias this class computes itself (composition)."""
         evals, evecs = np.linalg.eigh(S)
-        if evals[0] < -_INERTIA_TOL:
-            raise ValueError(f"inertia matrix is not positive semidefinite (eigenvalue {evals[0]:.3g})")
         evals = np.clip(evals, 0.0, None)
         return cls._trusted(evecs, fit_dispersion(evals / evals.sum(), method))
 
@@ -249,7 +254,7 @@ class Bingham:
 
     def compose(self, other: Bingham, method: Method = "saddlepoint") -> Bingham:
         """Moment-matched distribution of ``self (x) other`` for independent factors (QBF paper, A.9)."""
-        return Bingham.fit(composition_inertia(self.inertia(method), other.inertia(method)), method)
+        return Bingham._fit_trusted(composition_inertia(self.inertia(method), other.inertia(method)), method)
 
     # -- sampling -------------------------------------------------------------
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> NDArray[np.float64]:

@@ -70,6 +70,7 @@ class FusionModel:
         self._down_body = _DOWN.copy()
         self._tick_variance = 0.0
         self._dt = 0.0
+        self._prior_doubt_deg = 180.0
         self._rejected_s: Counter[str] = Counter()
 
     # -- one tick ---------------------------------------------------------------
@@ -79,7 +80,7 @@ class FusionModel:
         self._accel_trusted = False
         self._predict(imu, dt_ns)
         predicted = self.filter.estimate
-        prior_doubt_deg = rms_angle_deg(self.filter.state, self.filter.method)
+        prior_doubt_deg = self._prior_doubt_deg = rms_angle_deg(self.filter.state, self.filter.method)
         if imu:
             self._update_gravity(np.mean([s.accel_m_s2 for s in imu], axis=0), dt_ns * 1e-9)
         mags = [s.mag_gauss for s in samples if isinstance(s, MagSample)] + [s.mag_gauss for s in imu if s.mag_gauss is not None]
@@ -182,7 +183,7 @@ class FusionModel:
         """
         cfg = self.config
         f_inertial = quat.rotate(self._q_gyro, accel)
-        self._converged = self._converged or rms_angle_deg(self.filter.state, self.filter.method) < cfg.converged_deg
+        self._converged = self._converged or self._prior_doubt_deg < cfg.converged_deg
         converged = self._converged
         if self._acc_lp is None or not converged:
             self._acc_lp = f_inertial
@@ -230,10 +231,10 @@ class FusionModel:
         self.filter.state = self.filter.state.times_exponent(heading_exponent(q, error, self.config.mag_sigma_rad))
 
     def _innovation_ok(self, sensor: str, innovation_rad: float, sigma_rad: float) -> bool:
-        """Chi-style gate: accept a reading within ``k`` sigma of the prediction (sensor and state
-        uncertainty combined), or after ``innovation_reanchor_s`` of continuous rejections."""
+        """Chi-style gate: accept a reading within ``k`` sigma of the prediction (sensor and predicted
+        state uncertainty combined), or after ``innovation_reanchor_s`` of continuous rejections."""
         cfg = self.config
-        state_sigma = math.radians(rms_angle_deg(self.filter.state, self.filter.method))
+        state_sigma = math.radians(self._prior_doubt_deg)
         if innovation_rad <= cfg.innovation_gate_sigma * math.hypot(sigma_rad, state_sigma):
             self._rejected_s[sensor] = 0.0
             return True
