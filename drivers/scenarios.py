@@ -13,7 +13,7 @@ import numpy as np
 
 from .sim import Flight, SimConfig, simulate
 
-__all__ = ["SCENARIOS", "scenario"]
+__all__ = ["SCENARIOS", "flight", "scenario"]
 
 SCENARIOS: dict[str, str] = {
     "hover": "the first 12 s: hover with small attitude changes",
@@ -51,3 +51,10 @@ def scenario(name: str, seed: int = 0, imu_rate_hz: float = 200.0) -> Flight:
         t = (flight.t_ns - flight.t_ns[0]) * 1e-9
         return dataclasses.replace(flight, imu_valid=flight.imu_valid & ~((t >= 11.0) & (t < 11.5)))
     raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
+
+
+def flight(name: str, seed: int = 0, imu_rate_hz: float = 400.0, duration_s: float = 60.0) -> Flight:
+    """``"full"``: the whole programme for ``duration_s``; otherwise the named :func:`scenario`."""
+    if name == "full":
+        return simulate(SimConfig(seed=seed, duration_s=duration_s, imu_rate_hz=imu_rate_hz))
+    return scenario(name, seed, imu_rate_hz)

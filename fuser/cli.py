@@ -148,8 +148,7 @@ def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
 
 
 def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
-    from drivers.scenarios import scenario
-    from drivers.sim import SimConfig, simulate
+    from drivers.scenarios import flight as make_flight
     from fuser.pipeline import Pipeline
     from fuser.record import McapRecorder, RecorderProcess
     from fuser.simulate import run_sim
@@ -170,10 +169,7 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         outputs = [s for s in (rec.write_estimate if rec else None, pub.publish_estimate if pub else None) if s]
         pipeline = Pipeline(config, [rec.write_sample] if rec else [], outputs)
         stop = _stop_on_signal()
-        if args.scenario == "full":
-            flight = simulate(SimConfig(seed=args.seed, duration_s=args.duration, imu_rate_hz=args.imu_rate))
-        else:
-            flight = scenario(args.scenario, args.seed, args.imu_rate)
+        flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
         seconds = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
         print(f"sim: {args.scenario} flight, {seconds:.0f} s at {'full speed' if args.speed <= 0 else f'{args.speed:g}x'}"
               + (f", publishing on bingham_fuser/{config.vehicle}/attitude" if pub else "")

@@ -1,7 +1,7 @@
-"""Where samples come from, each as a stream of ``(sample, receive_ns)`` in arrival order.
+"""Samples from files and from the simulator (recorded MCAP inputs come from ``fuser.record.read_log``).
 
-* a recorded MCAP log (inputs with the times the fuser received them),
-* a MAVLink telemetry log (.tlog: each packet carries the receive time),
+* a MAVLink telemetry log (.tlog: each packet carries the receive time), as
+  ``(sample, receive_ns)`` in arrival order;
 * the simulated vehicle, encoded as MAVLink bytes or DroneCAN frames and
   decoded by the real drivers, exactly as from an autopilot.
 """
@@ -16,18 +16,17 @@ from drivers.dronecan_decode import DroneCanDecoder
 from drivers.mavlink_decode import MavlinkDecoder
 from drivers.samples import Sample
 from drivers.sim import Flight, dronecan_stream, mavlink_stream
-from fuser.record import read_log
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
-__all__ = ["log_inputs", "sim_ticks", "tlog_inputs"]
+__all__ = ["sim_ticks", "tlog_inputs"]
 
 SIM_LINK_LATENCY_NS = 1_000_000
 """Receive time of a simulated sample: its send time plus this link latency."""
 
 
-def tlog_inputs(path: str | Path, dialect: str = "common", stats: dict | None = None) -> Iterator[tuple[Sample, int]]:
+def tlog_inputs(path: str | Path, dialect: str = "common") -> Iterator[tuple[Sample, int]]:
     """Samples of a MAVLink .tlog with the receive time each packet was logged at."""
     connection = mavutil.mavlink_connection(str(path), dialect=dialect)
     decoder = MavlinkDecoder(dialect=dialect, parser=connection.mav)
@@ -38,15 +37,6 @@ def tlog_inputs(path: str | Path, dialect: str = "common", stats: dict | None = 
                 yield sample, round(msg._timestamp * 1e9)
     finally:
         connection.close()
-        if stats is not None:
-            stats.update(decoder.stats)
-
-
-def log_inputs(path: str | Path, stats: dict | None = None) -> Iterator[tuple[Sample, int]]:
-    """Inputs of an MCAP recording or a .tlog, chosen by the file's extension."""
-    if str(path).endswith(".tlog"):
-        return tlog_inputs(path, stats=stats)
-    return iter(read_log(path).inputs())
 
 
 def sim_ticks(flight: Flight, transport: str = "mavlink") -> Iterator[tuple[int, object, list[Sample]]]:

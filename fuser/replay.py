@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import TextIO
 
 from fuser.config import FuserConfig
-from fuser.inputs import log_inputs
+from fuser.inputs import tlog_inputs
 from fuser.pipeline import Pipeline
 from fuser.record import McapRecorder, read_log
 
@@ -68,7 +68,7 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     with McapRecorder(out, metadata={"source_log": Path(log).name}) as recorder:
         pipeline = Pipeline(config, [recorder.write_sample], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
         contents = None if str(log).endswith(".tlog") else read_log(log)
-        for sample, receive_ns in (log_inputs(log) if contents is None else contents.inputs()):
+        for sample, receive_ns in (tlog_inputs(log) if contents is None else contents.inputs()):
             pipeline.feed(sample, receive_ns)
             samples += 1
             first_ns = receive_ns if first_ns is None else first_ns

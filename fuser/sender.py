@@ -169,16 +169,12 @@ def send_flight(
 
 def run_sender(args: Any, stop: Callable[[], bool]) -> int:
     """``bingham-fuser sim --send ...``: build the flight from the sim flags, write the truth, send."""
-    from drivers.scenarios import scenario
-    from drivers.sim import SimConfig, simulate
+    from drivers.scenarios import flight as make_flight
 
     if args.speed != 1.0:
         print("sim --send: a live link runs in real time; --speed must be 1", file=sys.stderr)
         return 2
-    if args.scenario == "full":
-        flight = simulate(SimConfig(seed=args.seed, duration_s=args.duration, imu_rate_hz=args.imu_rate))
-    else:
-        flight = scenario(args.scenario, args.seed, args.imu_rate)
+    flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
     if args.truth:
         write_truth(flight, args.truth)
     faults = SendFaults(garbage_per_s=args.garbage, seed=args.seed)
