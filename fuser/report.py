@@ -46,9 +46,12 @@ def score_log(path: str | Path, since_s: float = 5.0) -> list[str]:
     if result is None:
         return [f"{path}: no reference attitude to score against"]
     name, err = result
+    if (err.t_ns[-1] - err.t_ns[0]) * 1e-9 <= since_s:
+        since_s = 0.0  # too short to leave out the convergence: score all of it
     rms = err.rms(since_s)
+    window = f"after the first {since_s:g} s" if since_s > 0 else "over the whole flight, convergence included"
     return [
-        f"error against {name} after the first {since_s:g} s (RMS, degrees):",
+        f"error against {name} {window} (RMS, degrees):",
         f"  total {rms['total']:.2f}   tilt {rms['tilt']:.2f}   heading {rms['heading']:.2f}   "
         f"reported uncertainty {rms['uncertainty']:.2f}",
     ]
