@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core import quaternion as quat
-from core.normalization import Method, fit_dispersion, log_normalizer, moments
+from core.normalization import Method, fit_dispersion_trusted, log_normalizer, moments
 from core.sampling import random_samples, unscented_samples
 
 __all__ = ["Bingham", "composition_inertia"]
@@ -93,12 +93,15 @@ class Bingham:
         self._cache: dict[tuple[str, str], object] = {}
 
     @classmethod
-    def _trusted(cls, M: NDArray, Z: NDArray) -> Bingham:
+    def _trusted(cls, M: NDArray, Z: NDArray, saddlepoint_moments: NDArray | None = None) -> Bingham:
         """Construct without validation, for results of this class's own operations
         (eigenvectors from ``eigh``, products of orthogonal matrices), which hold
-        the invariants by construction; the checks cost more than the operations."""
+        the invariants by construction; the checks cost more than the operations.
+        ``saddlepoint_moments``, if known (a fit computes them at its solution), are cached."""
         obj = cls.__new__(cls)
         obj._set(M, Z)
+        if saddlepoint_moments is not None:
+            obj._cache[("moments", "saddlepoint")] = saddlepoint_moments
         return obj
 
     # -- constructors ---------------------------------------------------------
@@ -141,7 +144,13 @@ class Bingham:
         """:meth:`fit` without validation, for inertias this class computes itself (composition)."""
         evals, evecs = np.linalg.eigh(S)
         evals = np.clip(evals, 0.0, None)
-        return cls._trusted(evecs, fit_dispersion(evals / evals.sum(), method))
+        return cls._fit_moments(evecs, evals / evals.sum(), method)
+
+    @classmethod
+    def _fit_moments(cls, M: NDArray, target: NDArray, method: Method, start: NDArray | None = None) -> Bingham:
+        """The Bingham with principal directions ``M`` and dispersion moments ``target`` (ascending)."""
+        Z, fitted = fit_dispersion_trusted(target, method, start)
+        return cls._trusted(M, Z, fitted)
 
     @classmethod
     def from_samples(cls, x: ArrayLike, weights: ArrayLike | None = None, method: Method = "saddlepoint") -> Bingham:
@@ -253,8 +262,31 @@ class Bingham:
         return Bingham._trusted(_CONJUGATE @ self._M, self._Z)
 
     def compose(self, other: Bingham, method: Method = "saddlepoint") -> Bingham:
-        """Moment-matched distribution of ``self (x) other`` for independent factors (QBF paper, A.9)."""
-        return Bingham._fit_trusted(composition_inertia(self.inertia(method), other.inertia(method)), method)
+        """Moment-matched distribution of ``self (x) other`` for independent factors (QBF paper, A.9).
+
+        When ``other`` is isotropic rotation noise (mode at the identity, equal
+        ``z_1 = z_2 = z_3``; the usual process noise), its inertia is
+        ``diag(a, b, b, b)`` and the composed inertia reduces to
+        ``a S + b (I - S)``: ``x (x) e_k`` for the four basis quaternions
+        ``e_k`` are orthonormal, so ``sum_k R(e_k) S R(e_k)^T = tr(S) I = I``,
+        and the cross terms vanish because ``E[w_j w_l] = 0``. The principal
+        directions are kept and the moments contract towards uniform,
+        ``omega' = (a - b) omega + b``: no eigendecomposition, and the fit starts
+        from this distribution's ``Z``. Checked against the general tensor
+        form and Monte Carlo in the tests.
+        """
+        spread = other._isotropic_spread
+        if spread is None:
+            return Bingham._fit_trusted(composition_inertia(self.inertia(method), other.inertia(method)), method)
+        b = float(other.moments(method)[0])
+        return Bingham._fit_moments(self._M, (1.0 - 4.0 * b) * self.moments(method) + b, method, self._Z)
+
+    @cached_property
+    def _isotropic_spread(self) -> float | None:
+        """``z_1`` if this is isotropic rotation noise (mode +-identity, ``z_1 = z_2 = z_3``), else None."""
+        if self._Z[0] == self._Z[2] and abs(self._M[0, 3]) == 1.0:
+            return float(self._Z[0])
+        return None
 
     # -- sampling -------------------------------------------------------------
     def sample(self, n: int, rng: np.random.Generator | int | None = None) -> NDArray[np.float64]:

@@ -32,7 +32,7 @@ from scipy import optimize
 
 from core import hopf_quadrature, saddlepoint
 
-__all__ = ["Method", "fit_dispersion", "log_normalizer", "moments", "moments_jacobian", "METHODS"]
+__all__ = ["Method", "fit_dispersion", "fit_dispersion_trusted", "log_normalizer", "moments", "moments_jacobian", "METHODS"]
 
 Method = Literal["saddlepoint", "exact"]
 METHODS: tuple[str, ...] = ("saddlepoint", "exact")
@@ -159,12 +159,28 @@ def fit_dispersion(
         raise ValueError("target moments must be in ascending order")
     if abs(t.sum() - 1.0) > 1e-6:
         raise ValueError(f"target moments must sum to 1, got {t.sum():.9g}")
-    t = np.maximum(np.sort(t), MIN_MOMENT)
+    return fit_dispersion_trusted(np.sort(t), method, max_iter=max_iter)[0]
+
+
+def fit_dispersion_trusted(
+    target: NDArray[np.float64], method: Method, start: NDArray[np.float64] | None = None, max_iter: int = 60
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """:func:`fit_dispersion` without validation, for the sorted eigenvalues of an inertia
+    this package computed itself; also returns the saddlepoint moments at the solution
+    (``None`` for ``"exact"``, whose moments equal the target to 1e-14).
+
+    ``start`` (ascending, ``<= 0``, last entry 0), e.g. the previous solution
+    when a distribution changes slowly, replaces the first guess of the
+    saddlepoint Gauss-Newton (same solution to the tolerance, in a step or
+    two). The exact solver ignores it: Levenberg-Marquardt from a distant
+    start can stall on the ``z <= 0`` bound.
+    """
+    t = np.maximum(target, MIN_MOMENT)
     t /= t.sum()
     log_t = np.log(t)
-    z0 = _initial_z(t)
     if method == "exact":
-        z = _exact_fit(z0, log_t)
-    else:
-        z = saddlepoint.fit_log_moments(z0, log_t, _CONVERGED, max_iter)
-    return np.sort(z)
+        return np.sort(_exact_fit(_initial_z(t), log_t)), None
+    z0 = _initial_z(t) if start is None else np.array(start, dtype=np.float64)
+    z, m = saddlepoint.fit_log_moments(z0, log_t, _CONVERGED, max_iter)
+    order = np.argsort(z, kind="stable")
+    return z[order], m[order]

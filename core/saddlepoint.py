@@ -167,7 +167,7 @@ def derivatives(z: np.ndarray, order: int) -> tuple:
 
 @njit(cache=True, nogil=True)
 def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: bool) -> tuple:
-    """Residual ``log m(z) - log target`` over ``z_1..z_(n-1)`` and, if asked, its Jacobian.
+    """Residual ``log m(z) - log target`` over ``z_1..z_(n-1)``, the moments ``m(z)`` and, if asked, the Jacobian.
 
     ``m_i = N_i / sum_k N_k`` are the moments of :func:`derivatives`; the
     Jacobian comes from the second derivatives (eq. 4):
@@ -178,9 +178,10 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
     total = 0.0
     for i in range(n):
         total += g[i]
+    m = g / total
     res = np.empty(n - 1)
     for i in range(n - 1):
-        res[i] = math.log(g[i] / total) - log_target[i]
+        res[i] = math.log(m[i]) - log_target[i]
     jac = np.empty((n - 1, n - 1))
     if with_jacobian:
         for j in range(n - 1):
@@ -189,7 +190,7 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
                 col += h[k, j] - g[k] * g[j]
             for i in range(n - 1):
                 jac[i, j] = (h[i, j] - g[i] * g[j]) / g[i] - col / total
-    return res, jac
+    return res, m, jac
 
 
 @njit(cache=True, nogil=True)
@@ -246,7 +247,7 @@ def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
+def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter: int) -> tuple:
     """Gauss-Newton for ``log m(z) = log target`` with ``z_n = 0`` fixed (saddlepoint paper, sec. III-B).
 
     Derivatives of the raised-dimension approximations are not the exact
@@ -254,11 +255,12 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
     linearly (about 16x per step, measured) whatever the Jacobian's
     freshness; the Jacobian is therefore refreshed only while the residual
     is large (a chord method), which halves the cost. Steps that would
-    increase the residual are halved; ``z`` stays <= 0.
+    increase the residual are halved; ``z`` stays <= 0. Returns ``z`` and
+    the approximated moments at ``z``.
     """
     n = z0.shape[0]
     z = z0.copy()
-    res, jac = _log_moment_residual(z, log_target, True)
+    res, m, jac = _log_moment_residual(z, log_target, True)
     cost = _sum_squares(res)
     trial = z.copy()
     for _ in range(max_iter):
@@ -270,14 +272,15 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
             for i in range(n - 1):
                 trial[i] = min(z[i] + scale * step[i], 0.0)
             fresh = cost > 1e-8
-            res_new, jac_new = _log_moment_residual(trial, log_target, fresh)
+            res_new, m_new, jac_new = _log_moment_residual(trial, log_target, fresh)
             cost_new = _sum_squares(res_new)
             if cost_new <= cost or scale < 1e-4:
                 break
             scale *= 0.5
         z[:] = trial
         res = res_new
+        m = m_new
         cost = cost_new
         if fresh:
             jac = jac_new
-    return z
+    return z, m

@@ -160,6 +160,20 @@ def test_compose_matches_monte_carlo(method):
     assert quat.angular_distance(C.mode, Bingham.fit(S_mc, "exact").mode) < 0.01
 
 
+@pytest.mark.parametrize("method", ["saddlepoint", "exact"])
+@pytest.mark.parametrize("state_z", [[-3e3, -2e3, -500.0], [-1e6, -1e6, -3.0], [-5.0, -5.0, -3.0], [0.0, 0.0, 0.0]])
+@pytest.mark.parametrize("noise_z", [-1e7, -2e3, -10.0, -0.5])
+def test_isotropic_noise_shortcut_equals_the_tensor_composition(method, state_z, noise_z):
+    """compose() with isotropic noise (``a S + b (I - S)``, warm-started fit) equals the general
+    structure-tensor composition followed by a fresh fit, from uniform to very peaked."""
+    A, W = random_bingham(state_z), Bingham.from_mode(quat.IDENTITY, [noise_z] * 3)
+    assert W._isotropic_spread == noise_z
+    general = Bingham.fit(composition_inertia(A.inertia(method), W.inertia(method)), method)
+    fast = A.compose(W, method)
+    np.testing.assert_allclose(fast.inertia(method), general.inertia(method), atol=1e-9)
+    np.testing.assert_allclose(fast.Z, general.Z, rtol=1e-6, atol=1e-6)
+
+
 def test_entropy_and_kl_match_monte_carlo():
     A, B = random_bingham([-40.0, -10.0, -2.0]), random_bingham([-15.0, -9.0, -1.0])
     x = A.sample(400_000, 5)
