@@ -17,6 +17,8 @@ progressive update in the tests.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -25,15 +27,13 @@ from core.bingham import Bingham
 
 __all__ = ["heading_exponent", "heading_likelihood", "vector_exponent", "vector_likelihood"]
 
-_CONJUGATE = np.array([1.0, -1.0, -1.0, -1.0])
 
-
-def _pure(v: ArrayLike) -> np.ndarray:
+def _unit(v: ArrayLike) -> np.ndarray:
     v = np.asarray(v, dtype=float)
-    norm = np.linalg.norm(v)
+    norm = float(np.sqrt(v @ v))
     if not np.isfinite(norm) or norm == 0.0:
         raise ValueError("direction vectors must be finite and non-zero")
-    return np.concatenate([[0.0], v / norm])
+    return v / norm
 
 
 def _check_sigma(sigma: float) -> None:
@@ -42,10 +42,23 @@ def _check_sigma(sigma: float) -> None:
 
 
 def vector_exponent(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> np.ndarray:
-    """Exponent ``K / sigma^2``, ``K = sym(R(b)^T L(r))``, of the vector likelihood (module docstring)."""
+    """Exponent ``K / sigma^2``, ``K = sym(R(b)^T L(r))``, of the vector likelihood (module docstring).
+
+    Written out, ``K`` is Davenport's matrix for the profile ``B = r b^T``:
+    ``[[tr B, (b x r)^T], [b x r, B + B^T - tr(B) I]]`` (checked against the
+    quaternion-matrix form in the tests).
+    """
     _check_sigma(sigma)
-    k = quat.right_matrix(_pure(b_body)).T @ quat.left_matrix(_pure(r_world))
-    return (k + k.T) / (2.0 * sigma * sigma)
+    b = _unit(b_body)
+    r = _unit(r_world)
+    profile = np.outer(r, b)
+    trace = float(r @ b)
+    k = np.empty((4, 4))
+    k[0, 0] = trace
+    k[0, 1:] = k[1:, 0] = np.cross(b, r)
+    k[1:, 1:] = profile + profile.T
+    k[1:, 1:] -= trace * np.eye(3)
+    return k / (sigma * sigma)
 
 
 def vector_likelihood(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> Bingham:
@@ -63,13 +76,14 @@ def heading_exponent(q_ref: ArrayLike, heading_error_rad: float, sigma: float) -
     does not inform). Its density ``exp(kappa ((x^-1 (x) z) . a)^2)`` is, with
     ``x^-1 (x) z = R(z) J x``, ``exp(kappa (v . x)^2)`` for ``v = J R(z)^T a``,
     ``kappa = -2/sigma^2`` (the vector part of a small rotation is half its
-    angle): roll and pitch are untouched.
+    angle): roll and pitch are untouched. With ``a = q_ref^* k q_ref`` (``k``
+    the pure quaternion of down) and ``R(z)^T p = p z^*``, ``v = conj(a z^*) =
+    -Rz(error) k q_ref``, which is computed directly.
     """
     _check_sigma(sigma)
     q_ref = quat.as_quaternion(q_ref)
-    down_body = quat.rotate(quat.conjugate(q_ref), [0.0, 0.0, 1.0])
-    z = quat.multiply(quat.from_rotvec([0.0, 0.0, heading_error_rad]), q_ref)
-    v = _CONJUGATE * (quat.right_matrix(z).T @ np.concatenate([[0.0], down_body]))
+    half = 0.5 * heading_error_rad
+    v = quat.multiply(np.array([math.sin(half), 0.0, 0.0, -math.cos(half)]), q_ref)
     return (-2.0 / (sigma * sigma)) * np.outer(v, v)
 
 

@@ -89,3 +89,13 @@ def test_bad_vectors_raise(bad):
         vector_exponent(bad, [0, 0, 1], 0.1)
     with pytest.raises(ValueError, match="sigma"):
         vector_exponent([0, 0, 1], [0, 0, 1], 0.0)
+
+
+def test_vector_exponent_equals_the_quaternion_matrix_form():
+    """Davenport's closed form equals ``sym(R(b)^T L(r)) / sigma^2`` built from the quaternion matrices."""
+    for _ in range(20):
+        b, r = RNG.normal(size=3), RNG.normal(size=3)
+        pure_b = np.concatenate([[0.0], b / np.linalg.norm(b)])
+        pure_r = np.concatenate([[0.0], r / np.linalg.norm(r)])
+        k = quat.right_matrix(pure_b).T @ quat.left_matrix(pure_r)
+        np.testing.assert_allclose(vector_exponent(b, r, 0.3), (k + k.T) / (2 * 0.3**2), atol=1e-12)
