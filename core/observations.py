@@ -49,15 +49,18 @@ def vector_exponent(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> np.n
     quaternion-matrix form in the tests).
     """
     _check_sigma(sigma)
-    b = _unit(b_body)
-    r = _unit(r_world)
-    profile = np.outer(r, b)
-    trace = float(r @ b)
-    k = np.empty((4, 4))
-    k[0, 0] = trace
-    k[0, 1:] = k[1:, 0] = np.cross(b, r)
-    k[1:, 1:] = profile + profile.T
-    k[1:, 1:] -= trace * np.eye(3)
+    bx, by, bz = _unit(b_body).tolist()
+    rx, ry, rz = _unit(r_world).tolist()
+    trace = rx * bx + ry * by + rz * bz
+    cross = (by * rz - bz * ry, bz * rx - bx * rz, bx * ry - by * rx)
+    k = np.array(
+        [
+            [trace, *cross],
+            [cross[0], 2 * rx * bx - trace, rx * by + ry * bx, rx * bz + rz * bx],
+            [cross[1], rx * by + ry * bx, 2 * ry * by - trace, ry * bz + rz * by],
+            [cross[2], rx * bz + rz * bx, ry * bz + rz * by, 2 * rz * bz - trace],
+        ]
+    )
     return k / (sigma * sigma)
 
 

@@ -12,6 +12,8 @@ Distribution" (unscented paper), sec. II and eq. (4).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -49,6 +51,10 @@ def as_quaternion(q: ArrayLike, *, unit: bool = True) -> NDArray[np.float64]:
     arr = np.asarray(q, dtype=float)
     if arr.shape[-1:] != (4,):
         raise ValueError(f"a quaternion needs 4 components (w, x, y, z), got shape {arr.shape}")
+    if arr.ndim == 1:  # one quaternion, the common case in a filter loop: a dot product checks it all
+        norm2 = float(arr @ arr)
+        if math.isfinite(norm2) and (not unit or abs(norm2 - 1.0) <= _UNIT_TOL):
+            return arr
     if not np.all(np.isfinite(arr)):
         raise ValueError("quaternion has NaN or infinite components")
     if unit:
