@@ -19,9 +19,12 @@ from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, Source
 __all__ = ["Estimate", "decode_sample", "dumps", "encode_sample", "sample_channel"]
 
 
+_ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+
+
 def dumps(obj: Any) -> bytes:
     """Deterministic compact JSON bytes."""
-    return json.dumps(obj, separators=(",", ":"), allow_nan=False).encode()
+    return _ENCODER.encode(obj).encode()
 
 
 def _source(s: SourceId) -> dict[str, Any]:
@@ -92,6 +95,10 @@ class Estimate:
             "counters": dict(sorted(self.counters.items())),
             "sensor_t_ns": self.sensor_t_ns,
         }
+
+    def to_json(self) -> bytes:
+        """The estimate as published and recorded (``dumps`` of :meth:`to_dict`)."""
+        return dumps(self.to_dict())
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Estimate:

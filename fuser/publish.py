@@ -113,7 +113,7 @@ class ZenohPublisher:
             return False
 
     def publish_estimate(self, est: Estimate) -> None:
-        self._put(self._attitude, dumps(est.to_dict()))
+        self._put(self._attitude, est.to_json())
 
     def publish_status(self, status: dict[str, Any]) -> None:
         self._put(self._status, dumps(status))

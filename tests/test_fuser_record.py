@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from mcap.reader import make_reader
+from mcap.writer import CompressionType, Writer
 
 from drivers.samples import AttitudeSample, ImuSample, MagSample, SourceId
 from fuser.codec import Estimate
@@ -180,3 +181,25 @@ def test_truncated_copies_recover_a_prefix_without_exception(tmp_path: Path) -> 
     assert counts == sorted(counts) and counts[0] == 0
     assert 0 < recovered[len(data) // 2] < full.records
     assert recovered[len(data) - 1] == full.records  # only the closing magic is missing
+
+
+@pytest.mark.parametrize("options", [{"compression": CompressionType.LZ4}, {"compression": CompressionType.NONE}, {"use_chunking": False}],
+                         ids=["lz4", "uncompressed", "unchunked"])
+def test_logs_of_other_writers_read_like_mcaps_own_reader(tmp_path: Path, options: dict) -> None:
+    """read_log parses chunks itself: it must agree with mcap's reader on any chunk layout."""
+    path = tmp_path / "other.mcap"
+    rng = random.Random(3)
+    with open(path, "wb") as f:
+        writer = Writer(f, chunk_size=1024, **options)
+        writer.start()
+        schema = writer.register_schema("s", "jsonschema", b"{}")
+        channels = {topic: writer.register_channel(topic, "json", schema) for topic in ("/input/imu", "/status")}
+        for i in range(500):
+            topic = rng.choice(list(channels))
+            writer.add_message(channels[topic], rng.randint(0, 10**9), json.dumps({"i": i}).encode(), i, i)
+        writer.finish()
+    with open(path, "rb") as f:
+        expected = [(c.topic, m.log_time, m.publish_time, m.data) for _, c, m in make_reader(f).iter_messages(log_time_order=True)]
+    log = read_log(path)
+    assert log.complete
+    assert [tuple(m) for m in log.raw] == expected
