@@ -16,8 +16,9 @@ that already ran is late, counted and dropped.
 from __future__ import annotations
 
 import dataclasses
+import math
+from bisect import bisect_right
 from collections import Counter
-from dataclasses import dataclass, field
 
 from drivers.samples import ImuSample, Sample
 from fuser.codec import Estimate
@@ -27,11 +28,8 @@ from fuser.model import FusionModel
 __all__ = ["FusionLoop"]
 
 
-@dataclass(order=True)
-class _Pending:
-    placed_ns: int
-    seq: int
-    sample: Sample = field(compare=False)
+_Pending = tuple[int, int, Sample]
+"""A buffered sample: (placed_ns, arrival number, sample); the arrival number keeps the order total."""
 
 
 class FusionLoop:
@@ -45,6 +43,7 @@ class FusionLoop:
         self.max_catch_up_ticks = max_catch_up_ticks
         self.counters: Counter[str] = Counter()
         self._offsets: dict[tuple, int] = {}
+        """Per stream (source, sample type), in order of first arrival: the smallest receive - send time."""
         self._pending: list[_Pending] = []
         self._seq = 0
         self._next_tick: int | None = None
@@ -58,16 +57,15 @@ class FusionLoop:
     def push(self, sample: Sample, receive_ns: int) -> None:
         """Hand a sample to the loop; it is fused by the tick that covers its time."""
         key = (sample.source, type(sample))
-        offset = receive_ns - sample.t_ns
-        if key not in self._offsets or offset < self._offsets[key]:
-            self._offsets[key] = offset
-        placed = sample.t_ns + self._offsets[key]
+        offset = min(receive_ns - sample.t_ns, self._offsets.get(key, receive_ns - sample.t_ns))
+        self._offsets[key] = offset
+        placed = sample.t_ns + offset
         if self._last_tick is not None and placed <= self._last_tick:
             self.counters["late"] += 1
             return
         if self._next_tick is None:
             self._next_tick = -(-placed // self.period_ns) * self.period_ns  # first grid point at or after it
-        self._pending.append(_Pending(placed, self._seq, sample))
+        self._pending.append((placed, self._seq, sample))
         self._seq += 1
         self.counters["samples"] += 1
 
@@ -89,20 +87,18 @@ class FusionLoop:
         """Run the ticks that cover every sample still pending (end of a log)."""
         if not self._pending:
             return []
-        return self.advance(max(p.placed_ns for p in self._pending) + self.period_ns + self.latency_ns - 1)
+        return self.advance(max(p[0] for p in self._pending) + self.period_ns + self.latency_ns - 1)
 
     def _tick(self, tick_ns: int) -> Estimate:
         self._pending.sort()
-        split = 0
-        while split < len(self._pending) and self._pending[split].placed_ns <= tick_ns:
-            split += 1
+        split = bisect_right(self._pending, (tick_ns, math.inf))  # every sample placed at or before the tick
         due, self._pending = self._pending[:split], self._pending[split:]
         dt = self.period_ns if self._last_tick is None else tick_ns - self._last_tick
         self._last_tick = tick_ns
         self.counters["ticks"] += 1
-        estimate = self.model.step([p.sample for p in due], dt, tick_ns)
+        estimate = self.model.step([p[2] for p in due], dt, tick_ns)
         estimate.counters.update(self.counters)
-        imu_offsets = [off for (_, kind), off in self._offsets.items() if kind is ImuSample]
-        if imu_offsets:
-            estimate = dataclasses.replace(estimate, sensor_t_ns=tick_ns - imu_offsets[0])
+        imu_offset = next((off for (_, kind), off in self._offsets.items() if kind is ImuSample), None)
+        if imu_offset is not None:
+            estimate = dataclasses.replace(estimate, sensor_t_ns=tick_ns - imu_offset)
         return estimate
