@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
@@ -50,18 +51,31 @@ def encode_sample(sample: Sample, receive_ns: int) -> dict[str, Any]:
     return out
 
 
+@lru_cache(maxsize=1024)
+def _source_id(transport: str, system: int, component: int, instance: int) -> SourceId:
+    """One shared SourceId per source: decoding a log makes few distinct ones, many times."""
+    return SourceId(transport, system, component, instance)
+
+
+def _vec(values: list[Any]) -> tuple[float, ...]:
+    return tuple(map(float, values))
+
+
 def decode_sample(topic: str, d: dict[str, Any]) -> tuple[Sample, int]:
     """Inverse of :func:`encode_sample`: the sample and its receive time."""
-    src = SourceId(**d["source"])
-    vec = lambda key: tuple(map(float, d[key]))  # noqa: E731
+    s = d["source"]
+    src = _source_id(s["transport"], s["system"], s["component"], s["instance"])
+    t_ns = int(d["t_ns"])
     if topic == "/input/imu":
-        mag = None if d.get("mag_gauss") is None else vec("mag_gauss")
-        return ImuSample(int(d["t_ns"]), vec("gyro_rad_s"), vec("accel_m_s2"), mag, src), int(d["receive_ns"])  # type: ignore[arg-type]
-    if topic == "/input/mag":
-        return MagSample(int(d["t_ns"]), vec("mag_gauss"), src), int(d["receive_ns"])  # type: ignore[arg-type]
-    if topic == "/input/attitude":
-        return AttitudeSample(int(d["t_ns"]), vec("q_wxyz"), src), int(d["receive_ns"])  # type: ignore[arg-type]
-    raise ValueError(f"not an input topic: {topic}")
+        mag = d.get("mag_gauss")
+        sample: Sample = ImuSample(t_ns, _vec(d["gyro_rad_s"]), _vec(d["accel_m_s2"]), None if mag is None else _vec(mag), src)  # type: ignore[arg-type]
+    elif topic == "/input/mag":
+        sample = MagSample(t_ns, _vec(d["mag_gauss"]), src)  # type: ignore[arg-type]
+    elif topic == "/input/attitude":
+        sample = AttitudeSample(t_ns, _vec(d["q_wxyz"]), src)  # type: ignore[arg-type]
+    else:
+        raise ValueError(f"not an input topic: {topic}")
+    return sample, int(d["receive_ns"])
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from typing import Any, BinaryIO, Iterable, NamedTuple
 
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, Message, Metadata
+from mcap.records import Channel, Chunk, McapRecord, Message, Metadata
 from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
@@ -424,6 +424,18 @@ _MESSAGE = struct.Struct("<HIQQ")
 """Channel id, sequence, log time and publish time: the fixed part of a Message record."""
 
 
+class _LogReader(StreamReader):
+    """mcap's StreamReader, skipping (not parsing) the indexes: read_log reads the data in file order."""
+
+    _SKIPPED = frozenset({Opcode.MESSAGE_INDEX, Opcode.CHUNK_INDEX, Opcode.ATTACHMENT_INDEX, Opcode.METADATA_INDEX,
+                          Opcode.STATISTICS, Opcode.SUMMARY_OFFSET})
+
+    def _read_record(self, opcode: int, length: int) -> McapRecord | None:
+        if opcode in self._SKIPPED:
+            return None  # the caller reads the whole length as padding (CRC included)
+        return super()._read_record(opcode, length)
+
+
 def _chunk_messages(chunk: Chunk, channels: dict[int, str]) -> list[RawMessage]:
     """The messages of a chunk (its CRC checked), registering the channels it declares.
 
@@ -465,7 +477,7 @@ def read_log(path: str | Path) -> LogContents:
     size = os.path.getsize(path)
     with open(path, "rb") as f:
         try:
-            for rec in StreamReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=size).records:
+            for rec in _LogReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=size).records:
                 if isinstance(rec, Chunk):
                     raw += _chunk_messages(rec, channels)
                 elif isinstance(rec, Channel):
