@@ -71,14 +71,17 @@ class FuserConfig:
     """Above this RMS uncertainty the state counts as unconverged: raw accelerometer, fast fixes."""
     accel_gate: float = 0.2
     """Reject the accelerometer when | |f| - g | / g exceeds this (manoeuvres, impacts)."""
-    accel_raw_gate: float = 0.5
-    """Readings whose own | |f| - g | / g exceeds this (impacts, hard manoeuvres) are kept out of the
-    low-pass: with a slow low-pass, a sustained push would otherwise tilt the estimate before the
-    filtered norm leaves ``accel_gate``."""
     innovation_gate_sigma: float = 3.0
     """Reject a gravity or heading reading further than this many sigma (sensor and state) from the prediction."""
     innovation_reanchor_s: float = 0.5
     """After this long of continuous rejections the reading is accepted again, so a wrong state can recover."""
+    tilt_model_error_deg: float = 0.7
+    """Published uncertainty only: one-sigma tilt error the filter cannot see (accelerometer bias and
+    misalignment, linear acceleration left after the low-pass), composed into every estimate as an
+    independent world-frame error (a consider term; the filter's own state and gains are unchanged)."""
+    heading_model_error_deg: float = 2.0
+    """Published uncertainty only: one-sigma heading error the filter cannot see (local distortion of
+    the reference field), composed like ``tilt_model_error_deg``; not applied without a magnetometer."""
     use_mag: bool = True
     mag_sigma_rad: float = 0.3
     """Heading noise per tick. Magnetometer errors (local field distortion) are correlated over
