@@ -314,12 +314,13 @@ class FusionModel:
         Every reading is rotated into an inertial frame by the gyro-only
         strapdown attitude (never corrected, so the frame holds still while
         the estimate is corrected) and low-passed there, as VQF does: linear and centripetal
-        accelerations average out over ``accel_lowpass_s``, gravity does not,
+        accelerations average out over the tilt time constant (up to
+        ``accel_lowpass_s``, see :meth:`_tilt_time_constant`), gravity does not,
         and rotation does not smear the filter. The filtered vector, seen in
         the current body frame, is the gravity measurement. Consecutive
         filtered readings are strongly correlated, so they must not be
         counted as independent: the per-tick sigma is set so that the
-        correction time constant is ``accel_lowpass_s`` (``sigma^2 = q
+        correction time constant is that same ``tau`` (``sigma^2 = q
         (tau/dt)^2`` for a per-tick process variance ``q``), which keeps the
         reported tilt uncertainty honest. Until the state first converges the
         raw reading is used with ``accel_sigma_rad``, for a fast start; never
