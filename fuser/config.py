@@ -29,12 +29,28 @@ class FuserConfig:
     gyro_bias_rad_s: float = 0.015
     """Uncertainty of the gyro bias before it has been learnt (one sigma, per axis)."""
     gyro_bias_floor_rad_s: float = 0.003
-    """Uncertainty the bias estimate settles to while it is being learnt."""
+    """Uncertainty the bias estimate settles to while it is learnt in motion (integral feedback)."""
+    gyro_bias_walk_rad_s_rt_s: float = 1e-4
+    """Random walk of the gyro bias (temperature, instability): the bias uncertainty grows by this
+    much per square-root second, so a bias learnt at rest is not trusted for ever."""
     bias_time_constant_s: float = 5.0
     """Time constant of the gyro bias estimate (0 disables bias estimation); also the
     correlation time of the residual bias in the process noise."""
     bias_learn_max_rate_rad_s: float = 0.2
     """The bias is learnt only in ticks rotating slower than this, with a trusted accelerometer."""
+    rest_min_s: float = 1.5
+    """Rest detection (VQF): the sensor counts as at rest once the gyro and accelerometer have stayed
+    within ``rest_gyro_rad_s`` and ``rest_accel_m_s2`` of their low-passed values this long; at rest
+    the gyro bias is estimated directly from the low-passed gyro (0 disables rest detection)."""
+    rest_filter_s: float = 0.5
+    """Time constant of the low-pass filters of the rest detector (VQF's restFilterTau)."""
+    rest_gyro_rad_s: float = 0.035
+    """Rest threshold on the gyro's deviation from its low-pass, and on the low-passed rate itself,
+    so that a slow steady turn is not taken for a bias (VQF's restThGyr and biasClip, 2 deg/s)."""
+    rest_accel_m_s2: float = 0.5
+    """Rest threshold on the accelerometer's deviation from its low-pass (VQF's restThAcc)."""
+    rest_bias_sigma_rad_s: float = 5e-4
+    """Noise of the low-passed gyro as a measurement of the bias at rest (VQF's biasSigmaRest, 0.03 deg/s)."""
     gyro_scale_error: float = 0.01
     """Relative gyro scale and misalignment error: process noise proportional to the rotation rate."""
     gyro_gap_rate_rad_s: float = 1.0
@@ -43,9 +59,14 @@ class FuserConfig:
     """Longer gaps between two gyro samples of one IMU are not integrated."""
     accel_sigma_rad: float = 0.1
     """Direction noise of a raw gravity measurement (used until the tilt is known)."""
-    accel_lowpass_s: float = 1.0
-    """Time constant of the accelerometer low-pass in the gyro-predicted world frame, which is
-    also the time constant of tilt corrections once converged (VQF's tauAcc)."""
+    accel_lowpass_s: float = 3.0
+    """Longest time constant of the accelerometer low-pass in the gyro-predicted world frame, which is
+    also the time constant of tilt corrections once converged (VQF's tauAcc), used once the gyro bias
+    is known well (see ``tilt_bias_error_deg``)."""
+    tilt_bias_error_deg: float = 0.5
+    """Tilt error a residual gyro bias may build up within one tilt-correction time constant: the time
+    constant is ``tilt_bias_error / bias sigma``, capped at ``accel_lowpass_s``, so the tilt is corrected
+    fast while the bias is unknown and slowly (less linear acceleration in the tilt) once it is learnt."""
     converged_deg: float = 10.0
     """Above this RMS uncertainty the state counts as unconverged: raw accelerometer, fast fixes."""
     accel_gate: float = 0.2
@@ -54,6 +75,13 @@ class FuserConfig:
     """Reject a gravity or heading reading further than this many sigma (sensor and state) from the prediction."""
     innovation_reanchor_s: float = 0.5
     """After this long of continuous rejections the reading is accepted again, so a wrong state can recover."""
+    tilt_model_error_deg: float = 0.7
+    """Published uncertainty only: one-sigma tilt error the filter cannot see (accelerometer bias and
+    misalignment, linear acceleration left after the low-pass), composed into every estimate as an
+    independent world-frame error (a consider term; the filter's own state and gains are unchanged)."""
+    heading_model_error_deg: float = 2.0
+    """Published uncertainty only: one-sigma heading error the filter cannot see (local distortion of
+    the reference field), composed like ``tilt_model_error_deg``; not applied without a magnetometer."""
     use_mag: bool = True
     mag_sigma_rad: float = 0.3
     """Heading noise per tick. Magnetometer errors (local field distortion) are correlated over

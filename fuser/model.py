@@ -7,7 +7,11 @@ update with the mean gravity direction (an exact Bingham likelihood,
 :func:`core.observations.vector_exponent`), the magnetometer's heading
 (yaw-only, :func:`core.observations.heading_exponent`) and, if
 configured, the autopilot's attitude (identity measurement). The state
-starts uniform: no prior knowledge of the attitude is needed.
+starts uniform: no prior knowledge of the attitude is needed. The gyro
+bias is a point estimate beside the Bingham, learnt at rest directly and in
+motion by integral feedback (VQF: D. Laidig, T. Seel, "VQF: Highly accurate
+IMU orientation estimation with bias estimation and magnetic disturbance
+rejection", Information Fusion 91, 2023).
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, Source
 from fuser.codec import Estimate
 from fuser.config import FuserConfig
 
-__all__ = ["FusionModel", "GRAVITY_M_S2"]
+__all__ = ["FusionModel", "GRAVITY_M_S2", "with_model_error"]
 
 GRAVITY_M_S2 = 9.80665
 _DOWN = np.array([0.0, 0.0, 1.0])
@@ -34,6 +38,35 @@ _MIN_VARIANCE = 1e-18  # caps the noise concentration at 2e18 for a zero-length 
 _BIAS_LEARN_MAX_UNCERTAINTY_DEG = 5.0
 _DEFAULT_BIAS_CORRELATION_S = 10.0
 _MAX_BIAS = 0.2  # rad/s: beyond any MEMS gyro's bias; stops a wrong start from running away
+
+
+def with_model_error(state: Bingham, tilt_variance: float, heading_variance: float) -> Bingham:
+    """``state`` composed with an independent world-frame error of the model (a consider term).
+
+    Errors the filter cannot see in its innovations because they are
+    correlated for longer than it can average (the reference field's local
+    distortion, accelerometer bias and misalignment, linear acceleration
+    left after the low-pass) make the posterior too sure. Treating them as
+    an independent rotation error ``e`` with per-axis angle variances
+    ``tilt_variance`` (about the horizontal axes) and ``heading_variance``
+    (about world down), the published attitude is ``e (x) x``: in the
+    tangent space of the mode covariances add (a Schmidt consider update,
+    Maybeck, *Stochastic Models, Estimation and Control*, vol. 1, sec. 6.8,
+    without the cross terms). For a Bingham, ``E[y_i^2] = 1/(2|z_i|)`` along
+    its principal directions and a quarter of the angle variance along
+    the body axis ``vec(mode^-1 (x) m_i)`` is added there; the principal
+    directions are kept (the projection drops the model error's small
+    off-diagonal part), so no eigendecomposition is needed. An unknown
+    axis (``z_i = 0``) stays unknown.
+    """
+    M, Z = state.M, state.Z
+    mode = M[:, 3]
+    axes = (quat.left_matrix(quat.conjugate(mode)) @ M[:, :3])[1:]  # body-frame axis of each principal direction
+    down = quat.rotate(quat.conjugate(mode), _DOWN)
+    variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * (down @ axes) ** 2)
+    z = Z[:3] / (1.0 + 2.0 * np.abs(Z[:3]) * variance)
+    order = np.argsort(z, kind="stable")
+    return Bingham(np.column_stack([M[:, :3][:, order], mode]), np.append(z[order], 0.0))
 
 
 def _rotation_noise(angle_variance: float) -> Bingham:
@@ -53,7 +86,8 @@ class FusionModel:
         self.config = config
         self.filter = BinghamFilter(Bingham.uniform())
         self.counters: Counter[str] = Counter()
-        self._last_gyro_ns: dict[SourceId, int] = {}
+        self._last_gyro: dict[SourceId, tuple[int, np.ndarray]] = {}  # time and rate of each IMU's last gyro sample
+        self._clock_offset_ns: dict[SourceId, int] = {}  # least (tick time - sample time) seen: the loop's timeline
         self._noise_cache: dict[int, Bingham] = {}
         field = np.asarray(config.mag_field_ned_gauss, dtype=float)
         self._field_norm = float(np.linalg.norm(field))
@@ -63,6 +97,11 @@ class FusionModel:
         self.gyro_bias = np.zeros(3)
         self.bias_variance = config.gyro_bias_rad_s**2
         self._rate = 0.0
+        self._raw_rate: np.ndarray | None = None  # this tick's mean gyro rate, bias not removed
+        self._rest_gyro_lp: np.ndarray | None = None
+        self._rest_accel_lp: np.ndarray | None = None
+        self._rest_s = 0.0
+        self.at_rest = False
         self._accel_trusted = False
         self._acc_lp: np.ndarray | None = None
         self._converged = False  # once converged, the raw accelerometer is never trusted again
@@ -82,8 +121,13 @@ class FusionModel:
         predicted = self.filter.estimate
         prior_doubt_deg = self._prior_doubt_deg = rms_angle_deg(self.filter.state, self.filter.method)
         if imu:
-            self._update_gravity(np.mean([s.accel_m_s2 for s in imu], axis=0), dt_ns * 1e-9)
-        mags = [s.mag_gauss for s in samples if isinstance(s, MagSample)] + [s.mag_gauss for s in imu if s.mag_gauss is not None]
+            accel = self._in_last_body(imu, [s.accel_m_s2 for s in imu])
+            self._detect_rest(accel)
+            self._update_gravity(accel, dt_ns * 1e-9)
+        with_mag = [s for s in imu if s.mag_gauss is not None]
+        mags = [s.mag_gauss for s in samples if isinstance(s, MagSample)]
+        if with_mag:
+            mags.append(self._in_last_body(with_mag, [s.mag_gauss for s in with_mag]))
         if mags and self.config.use_mag:
             self._update_heading(np.mean(mags, axis=0))
         if self.config.attitude_sigma_deg is not None:
@@ -91,7 +135,66 @@ class FusionModel:
                 if isinstance(s, AttitudeSample):
                     self._update_attitude(s.q_wxyz)
         self._learn_bias(predicted, prior_doubt_deg)
-        return self._estimate(t_ns)
+        return self._estimate(t_ns, self._published(imu, t_ns))
+
+    def _in_last_body(self, imu: list[ImuSample], vectors: list) -> np.ndarray:
+        """Mean of the IMU samples' body-frame vectors, each turned into the body frame of its IMU's last
+        gyro sample (the state's time): at 600 deg/s the body turns 3 degrees in half a 10-ms tick,
+        which averaging in the moving frame would put into the tilt and heading measurements.
+        Small-angle rotation at this tick's rate: ``v - (w dt) x v``."""
+        v = np.asarray(vectors, dtype=float)
+        if self._raw_rate is None:
+            return v.mean(axis=0)
+        rate = self._raw_rate - self.gyro_bias
+        behind = np.array([(self._last_gyro[s.source][0] - s.t_ns) * 1e-9 if s.source in self._last_gyro else 0.0 for s in imu])
+        return (v - np.cross(behind[:, None] * rate, v)).mean(axis=0)
+
+    def _detect_rest(self, accel: np.ndarray) -> None:
+        """Rest detection and rest-phase bias estimation (VQF, sec. 3.3).
+
+        The body-frame gyro and accelerometer are low-passed over
+        ``rest_filter_s``; the sensor is at rest once neither has left its
+        low-pass by more than its threshold (and the low-passed rate is
+        below the gyro threshold) for ``rest_min_s``. At rest the low-passed
+        gyro reads the bias directly: a Kalman update of the bias with it,
+        whose noise is counted once per ``rest_filter_s`` (consecutive
+        low-passed readings are correlated, not independent).
+        """
+        cfg = self.config
+        gyro, dt = self._raw_rate, self._dt
+        if cfg.rest_min_s <= 0 or gyro is None or dt <= 0.0:
+            return
+        if self._rest_gyro_lp is None or self._rest_accel_lp is None:
+            self._rest_gyro_lp, self._rest_accel_lp = gyro.copy(), accel.copy()
+        a = min(1.0, dt / cfg.rest_filter_s)
+        self._rest_gyro_lp += a * (gyro - self._rest_gyro_lp)
+        self._rest_accel_lp += a * (accel - self._rest_accel_lp)
+        still = (
+            float(np.linalg.norm(gyro - self._rest_gyro_lp)) < cfg.rest_gyro_rad_s
+            and float(np.linalg.norm(self._rest_gyro_lp)) < cfg.rest_gyro_rad_s
+            and float(np.linalg.norm(accel - self._rest_accel_lp)) < cfg.rest_accel_m_s2
+        )
+        self._rest_s = self._rest_s + dt if still else 0.0
+        self.at_rest = self._rest_s >= cfg.rest_min_s
+        if not self.at_rest:
+            return
+        self.counters["rest_ticks"] += 1
+        noise = cfg.rest_bias_sigma_rad_s**2 * max(cfg.rest_filter_s / dt, 1.0)
+        gain = self.bias_variance / (self.bias_variance + noise)
+        self.gyro_bias = self.gyro_bias + gain * (self._rest_gyro_lp - self.gyro_bias)
+        self.bias_variance *= 1.0 - gain
+
+    def _tilt_time_constant(self) -> float:
+        """Tilt-correction (and accelerometer low-pass) time constant for the current bias uncertainty.
+
+        A residual bias ``b`` makes the tilt lag by ``b tau`` behind a
+        correction loop of time constant ``tau``; a longer ``tau`` lets less
+        linear acceleration through. So ``tau = tilt_bias_error / sigma_b``,
+        capped at ``accel_lowpass_s``: fast while the bias is unknown (a
+        cold start, a multirotor's 1 deg/s bias), VQF's slow 3 s once learnt.
+        """
+        cfg = self.config
+        return min(cfg.accel_lowpass_s, math.radians(cfg.tilt_bias_error_deg) / math.sqrt(max(self.bias_variance, _MIN_VARIANCE)))
 
     def _learn_bias(self, predicted: np.ndarray, prior_doubt_deg: float) -> None:
         """Integral feedback of the tick's correction into the gyro bias (Mahony-style).
@@ -104,32 +207,35 @@ class FusionModel:
         estimate whose residual error is the process noise ``gyro_bias_rad_s``.
         """
         cfg = self.config
-        if cfg.bias_time_constant_s <= 0 or not self._accel_trusted or self._rate > cfg.bias_learn_max_rate_rad_s:
+        if cfg.bias_time_constant_s <= 0 or self.at_rest or not self._accel_trusted or self._rate > cfg.bias_learn_max_rate_rad_s:
             return
         if prior_doubt_deg > _BIAS_LEARN_MAX_UNCERTAINTY_DEG:
             return  # the prediction was a guess (uniform start, after a gap): its correction is not drift
         correction = quat.to_rotvec(quat.multiply(quat.conjugate(predicted), self.filter.estimate))
         self.gyro_bias = np.clip(self.gyro_bias - correction / cfg.bias_time_constant_s, -_MAX_BIAS, _MAX_BIAS)
         # learning for a tick shrinks the bias uncertainty towards its floor with the same time constant
+        # (never raises it: a bias learnt at rest is known better than feedback can tell)
         decay = min(1.0, self._dt / cfg.bias_time_constant_s)
-        self.bias_variance += decay * (cfg.gyro_bias_floor_rad_s**2 - self.bias_variance)
+        self.bias_variance -= decay * max(0.0, self.bias_variance - cfg.gyro_bias_floor_rad_s**2)
 
     def _predict(self, imu: list[ImuSample], dt_ns: int) -> None:
         cfg = self.config
         dt = self._dt = dt_ns * 1e-9
+        self.bias_variance = min(self.bias_variance + cfg.gyro_bias_walk_rad_s_rt_s**2 * dt, cfg.gyro_bias_rad_s**2)
         rates = []
         for source in sorted({s.source for s in imu}, key=repr):
             rotvec, covered = self._integrate(sorted((s for s in imu if s.source == source), key=lambda s: s.t_ns))
             if covered > 0.0:
-                rates.append(rotvec / covered - self.gyro_bias)
+                rates.append(rotvec / covered)
+        self._raw_rate = np.mean(rates, axis=0) if rates else None
         # A bias error persists: over the correlation time tau it turns the
         # attitude by e*tau, the same as white noise of variance e^2 tau dt per
         # tick; (e dt)^2 would understate it by tau/dt and make the filter
         # overconfident (and the bias loop underdamped).
         correlation_s = cfg.bias_time_constant_s if cfg.bias_time_constant_s > 0 else _DEFAULT_BIAS_CORRELATION_S
         variance = cfg.gyro_noise_rad_s_rt_hz**2 * dt + self.bias_variance * correlation_s * dt
-        if rates:
-            rate = np.mean(rates, axis=0)
+        if self._raw_rate is not None:
+            rate = self._raw_rate - self.gyro_bias
             self._rate = float(np.linalg.norm(rate))
             u = quat.from_rotvec(rate * dt)
             self._q_gyro = quat.normalize(quat.multiply(self._q_gyro, u))
@@ -142,21 +248,59 @@ class FusionModel:
         self.filter.predict(self._noise(variance), u)
 
     def _integrate(self, samples: list[ImuSample]) -> tuple[np.ndarray, float]:
-        """Rotation vector and seconds covered by one IMU's gyro samples (rate held over the preceding interval)."""
+        """Rotation vector and seconds covered by one IMU's gyro samples.
+
+        Each sample is the rate at its time stamp, so the rate between two
+        samples is their mean (trapezoidal rule): holding the new rate over
+        the preceding interval would lag the attitude by half a sample
+        period, a degree at 600 deg/s and 286 Hz.
+        """
         rotvec = np.zeros(3)
         covered = 0.0
         for s in samples:
-            last = self._last_gyro_ns.get(s.source)
-            self._last_gyro_ns[s.source] = s.t_ns
+            rate = np.asarray(s.gyro_rad_s, dtype=float)
+            last = self._last_gyro.get(s.source)
+            self._last_gyro[s.source] = (s.t_ns, rate)
             if last is None:
                 continue
-            dt = (s.t_ns - last) * 1e-9
+            dt = (s.t_ns - last[0]) * 1e-9
             if not 0.0 < dt <= self.config.max_gyro_dt_s:
                 self.counters["gyro_gap"] += 1
                 continue
-            rotvec += np.asarray(s.gyro_rad_s) * dt
+            rotvec += 0.5 * (rate + last[1]) * dt
             covered += dt
         return rotvec, covered
+
+    def _published(self, imu: list[ImuSample], t_ns: int) -> Bingham:
+        """The state carried from the last gyro sample to the tick time at that sample's rate.
+
+        The loop fuses samples placed up to the tick time ``t_ns`` at
+        ``sample time + offset`` (its least latency) and stamps the estimate
+        with the tick time; the least ``t_ns - sample time`` seen is that
+        offset, so the rest of the gap is how far the tick lies past the
+        state's last gyro sample (up to one sample period, half of one on
+        average: 0.5 deg at 600 deg/s and 286 Hz). Only the published
+        estimate moves; the filter integrates on from the sample.
+        """
+        if not imu:
+            return self._model_error(self.filter.state)
+        source = min((s.source for s in imu), key=repr)
+        last_ns, rate = self._last_gyro[source]
+        gap = t_ns - last_ns
+        offset = self._clock_offset_ns[source] = min(self._clock_offset_ns.get(source, gap), gap)
+        lead = min((gap - offset) * 1e-9, self._dt)
+        if lead <= 0.0:
+            return self._model_error(self.filter.state)
+        return self._model_error(self.filter.state.rotate_right(quat.from_rotvec((rate - self.gyro_bias) * lead)))
+
+    def _model_error(self, state: Bingham) -> Bingham:
+        """The published state: the filter's, with the model error of :func:`with_model_error`."""
+        cfg = self.config
+        tilt = math.radians(cfg.tilt_model_error_deg) ** 2
+        heading = math.radians(cfg.heading_model_error_deg) ** 2 if cfg.use_mag else 0.0
+        if tilt == 0.0 and heading == 0.0:
+            return state
+        return with_model_error(state, tilt, heading)
 
     def _noise(self, variance: float) -> Bingham:
         key = round(math.log(variance) * 20)  # 5% steps: ticks repeat their length and the bias variance settles
@@ -170,25 +314,27 @@ class FusionModel:
         Every reading is rotated into an inertial frame by the gyro-only
         strapdown attitude (never corrected, so the frame holds still while
         the estimate is corrected) and low-passed there, as VQF does: linear and centripetal
-        accelerations average out over ``accel_lowpass_s``, gravity does not,
+        accelerations average out over the tilt time constant (up to
+        ``accel_lowpass_s``, see :meth:`_tilt_time_constant`), gravity does not,
         and rotation does not smear the filter. The filtered vector, seen in
         the current body frame, is the gravity measurement. Consecutive
         filtered readings are strongly correlated, so they must not be
         counted as independent: the per-tick sigma is set so that the
-        correction time constant is ``accel_lowpass_s`` (``sigma^2 = q
+        correction time constant is that same ``tau`` (``sigma^2 = q
         (tau/dt)^2`` for a per-tick process variance ``q``), which keeps the
         reported tilt uncertainty honest. Until the state first converges the
         raw reading is used with ``accel_sigma_rad``, for a fast start; never
         after, when a raw reading mid-manoeuvre is the misleading one.
         """
         cfg = self.config
+        tau = self._tilt_time_constant()
         f_inertial = quat.rotate(self._q_gyro, accel)
         self._converged = self._converged or self._prior_doubt_deg < cfg.converged_deg
         converged = self._converged
         if self._acc_lp is None or not converged:
             self._acc_lp = f_inertial
         else:
-            self._acc_lp += min(1.0, dt / cfg.accel_lowpass_s) * (f_inertial - self._acc_lp)
+            self._acc_lp += min(1.0, dt / tau) * (f_inertial - self._acc_lp)
         norm = float(np.linalg.norm(self._acc_lp))
         error = abs(norm - GRAVITY_M_S2) / GRAVITY_M_S2
         if error > cfg.accel_gate:
@@ -197,7 +343,7 @@ class FusionModel:
         filtered_body = quat.rotate(quat.conjugate(self._q_gyro), self._acc_lp)
         self._down_body = -filtered_body / norm  # measured, for the magnetometer's dip check
         if converged:
-            sigma = math.sqrt(self._tick_variance) * cfg.accel_lowpass_s / max(dt, 1e-6)
+            sigma = math.sqrt(self._tick_variance) * tau / max(dt, 1e-6)
         else:
             sigma = cfg.accel_sigma_rad
         predicted_down = quat.rotate(quat.conjugate(self.filter.estimate), _DOWN)
@@ -250,8 +396,7 @@ class FusionModel:
         sigma = math.radians(self.config.attitude_sigma_deg or 0.0)
         self.filter.update(quat.normalize(q_wxyz), _rotation_noise(sigma * sigma))
 
-    def _estimate(self, t_ns: int) -> Estimate:
-        state = self.filter.state
+    def _estimate(self, t_ns: int, state: Bingham) -> Estimate:
         q = state.mode
         return Estimate(
             t_ns=t_ns,

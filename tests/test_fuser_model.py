@@ -58,8 +58,9 @@ def test_gyro_integration_follows_a_constant_rotation():
         est = model.step(samples, TICK, (k + 1) * TICK)
     q = quat.multiply(q0, quat.from_rotvec(rate * 1.0))
     assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 0.2
-    # the low-passed specific force decays below the gate within a fraction of a second of free fall
-    assert model.counters["accel_gated"] >= 50
+    # the low-passed specific force decays below the gate after 0.22 tau of free fall (0.7 s at the
+    # 3-s time constant once the bias is learnt at rest): gated for the rest of the second
+    assert model.counters["accel_gated"] >= 25
 
 
 def test_impacts_are_absorbed_and_sustained_acceleration_is_gated():
@@ -71,8 +72,10 @@ def test_impacts_are_absorbed_and_sustained_acceleration_is_gated():
     assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 0.3
     before = model.counters["accel_gated"]
     est = run_static(model, q, 100, accel_extra=sideways)  # a second of it: the filtered norm leaves the gate
-    assert model.counters["accel_gated"] > before + 50
-    assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 3.0
+    assert model.counters["accel_gated"] > before + 10
+    # the 3-s low-pass (bias learnt at rest) needs 0.7 s to leave the gate; what leaks in by then
+    # tilts the estimate a few degrees (the price of letting less linear acceleration through)
+    assert math.degrees(quat.angular_distance(est.q_wxyz, q)) < 6.0
 
 
 def test_magnet_near_the_sensor_does_not_drag_the_heading():

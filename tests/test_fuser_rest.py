@@ -1,0 +1,107 @@
+"""Rest detection with direct bias estimation, the bias-adaptive tilt time constant and the published model error."""
+
+import math
+
+import numpy as np
+import pytest
+
+from core import quaternion as quat
+from core.bingham import Bingham
+from core.filters import rms_angle_deg
+from drivers.samples import ImuSample, SourceId
+from fuser.config import FuserConfig
+from fuser.model import GRAVITY_M_S2, FusionModel, with_model_error
+
+SRC = SourceId("sim", 1, 1, 0)
+FIELD = np.array([0.21, 0.0, 0.43])
+TICK = 10_000_000
+
+
+def still(model: FusionModel, q: np.ndarray, seconds: float, gyro, start_tick: int = 0, seed: int = 0) -> int:
+    """Feed a sensor at rest at attitude q: 4 IMU samples per tick with gyro ``gyro`` and white noise."""
+    rng = np.random.default_rng(seed)
+    f = quat.rotate(quat.conjugate(q), [0.0, 0.0, -GRAVITY_M_S2])
+    m = quat.rotate(quat.conjugate(q), FIELD)
+    k = start_tick
+    for k in range(start_tick, start_tick + round(seconds * 100)):
+        samples = [
+            ImuSample(k * TICK + j * 2_500_000, tuple(np.asarray(gyro) + 0.003 * rng.standard_normal(3)),
+                      tuple(f + 0.03 * rng.standard_normal(3)), tuple(m), SRC)
+            for j in range(1, 5)
+        ]
+        model.step(samples, TICK, (k + 1) * TICK)
+    return k + 1
+
+
+def test_rest_detection_recovers_a_known_bias_without_feedback():
+    """Integral feedback off: only the rest-phase estimate can find the bias, and it does within seconds."""
+    bias = np.array([0.01, -0.02, 0.015])
+    model = FusionModel(FuserConfig(bias_time_constant_s=0))
+    still(model, quat.from_rotvec([0.1, -0.1, 0.4]), 4.0, bias)
+    assert model.at_rest and model.counters["rest_ticks"] > 200
+    np.testing.assert_allclose(model.gyro_bias, bias, atol=5e-4)
+    assert math.sqrt(model.bias_variance) < 0.001
+
+
+def test_without_rest_detection_the_bias_is_not_found():
+    bias = np.array([0.01, -0.02, 0.015])
+    model = FusionModel(FuserConfig(bias_time_constant_s=0, rest_min_s=0))
+    still(model, quat.IDENTITY, 4.0, bias)
+    assert not model.at_rest and np.all(model.gyro_bias == 0.0)
+
+
+@pytest.mark.parametrize("motion", ["steady turn", "oscillation"])
+def test_rest_detector_does_not_fire_in_motion(motion):
+    """A slow steady turn (3 deg/s, above the 2 deg/s bias clip) or a wobble is not rest: the bias stays put."""
+    model = FusionModel(FuserConfig(bias_time_constant_s=0))
+    q = quat.IDENTITY.copy()
+    for k in range(600):
+        t = k * 0.01
+        rate = np.array([0.0, 0.0, 0.05]) if motion == "steady turn" else np.array([0.3 * math.sin(2 * math.pi * t), 0.2 * math.cos(3 * t), 0.0])
+        samples = []
+        for j in range(1, 5):
+            q = quat.multiply(q, quat.from_rotvec(rate * 0.0025))
+            f = quat.rotate(quat.conjugate(q), [0.0, 0.0, -GRAVITY_M_S2])
+            samples.append(ImuSample(k * TICK + j * 2_500_000, tuple(rate), tuple(f), tuple(quat.rotate(quat.conjugate(q), FIELD)), SRC))
+        model.step(samples, TICK, (k + 1) * TICK)
+    assert model.counters["rest_ticks"] == 0
+    assert np.all(model.gyro_bias == 0.0)
+
+
+def test_tilt_time_constant_is_short_until_the_bias_is_learnt():
+    model = FusionModel(FuserConfig())
+    cold = model._tilt_time_constant()
+    assert cold < 1.0  # 0.5 deg / 0.015 rad/s: a fast tilt correction while the bias is unknown
+    still(model, quat.IDENTITY, 4.0, (0.01, 0.0, -0.01))
+    assert model._tilt_time_constant() == pytest.approx(model.config.accel_lowpass_s)
+
+
+def test_model_error_matches_composition_with_isotropic_noise():
+    """Isotropic model error: the cheap tangent-space form agrees with the moment-matched composition."""
+    state = Bingham.from_mode(quat.from_rotvec([0.3, -0.2, 1.0]), [-2e5, -1e5, -2e4])
+    sigma = math.radians(2.0)
+    z = -2.0 / sigma**2
+    composed = Bingham.from_mode(quat.IDENTITY, [z, z, z]).compose(state)
+    ours = with_model_error(state, sigma**2, sigma**2)
+    assert rms_angle_deg(ours) == pytest.approx(rms_angle_deg(composed), rel=0.03)
+    assert quat.angular_distance(ours.mode, state.mode) < 1e-12
+
+
+def test_model_error_widens_heading_and_tilt_separately_and_keeps_unknown_axes_unknown():
+    q = quat.from_rotvec([0.0, 0.0, 0.7])  # level: body z is world down
+    state = Bingham.from_mode(q, [-1e6, -1e6, -1e5])  # tilt 0.08 deg, heading 0.26 deg
+    wide = with_model_error(state, 0.0, math.radians(3.0) ** 2)
+    assert rms_angle_deg(wide) > 2.5
+    assert wide.Z[1] < -5e5  # the two tilt axes barely move
+    assert np.all(with_model_error(Bingham.uniform(), 1e-3, 1e-3).Z == 0.0)
+
+
+def test_published_uncertainty_includes_the_configured_model_error():
+    plain = FusionModel(FuserConfig(heading_model_error_deg=0.0, tilt_model_error_deg=0.0))
+    wide = FusionModel(FuserConfig(heading_model_error_deg=3.0, tilt_model_error_deg=1.0))
+    for model in (plain, wide):
+        still(model, quat.IDENTITY, 3.0, (0.0, 0.0, 0.0))
+    a = plain.step([], TICK, 301 * TICK)
+    b = wide.step([], TICK, 301 * TICK)
+    assert b.uncertainty_deg > a.uncertainty_deg + 2.0
+    assert quat.angular_distance(a.q_wxyz, b.q_wxyz) < 1e-9  # the estimate itself is unchanged
