@@ -30,7 +30,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from drivers.samples import ImuSample  # noqa: E402
 from drivers.sim import SimConfig, simulate  # noqa: E402
 from fuser.config import FuserConfig  # noqa: E402
 from fuser.pipeline import Pipeline  # noqa: E402
@@ -56,7 +55,7 @@ def sim_log(path: Path, seconds: float, imu_hz: float) -> None:
 
 
 def bench_replay(log: Path, out: Path) -> dict:
-    imu = sum(isinstance(s, ImuSample) for s, _ in read_log(log).inputs())
+    imu = len(read_log(log).of(["/input/imu"]))
     summary = replay(log, out, FuserConfig(), progress=None)
     return {"imu": imu, "samples": summary.samples, "seconds": summary.seconds, "imu_per_s": imu / summary.seconds}
 
@@ -73,11 +72,12 @@ def profile_replay(log: Path, out: Path, top: int = 18) -> str:
     return text.getvalue()
 
 
-def bench_live(seconds: float, imu_hz: float) -> dict:
-    """LiveRunner wired as `bingham-fuser run` wires it, fed by a sender process, publishing to a subscriber process."""
+def bench_live(seconds: float, imu_hz: float, record: Path | None = None) -> dict:
+    """LiveRunner wired as `bingham-fuser run [--record]` wires it, fed by a sender process, publishing to a subscriber process."""
     from drivers.sources import MavlinkSource
     from fuser.live import LiveRunner
     from fuser.publish import ZenohPublisher, zenoh_config
+    from fuser.record import RecorderProcess
 
     udp, zport = free_port(socket.SOCK_DGRAM), free_port()
     endpoint = f"tcp/127.0.0.1:{zport}"
@@ -90,13 +90,19 @@ def bench_live(seconds: float, imu_hz: float) -> dict:
     sender = subprocess.Popen([sys.executable, "-m", "fuser.cli", "sim", "--scenario", "full", "--duration", str(seconds),
                                "--imu-rate", str(imu_hz), "--send", f"udpout:127.0.0.1:{udp}", "--start-at", f"{time.time() + lead:.6f}"],
                               cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    rec = None if record is None else RecorderProcess(record)
     try:
-        pipeline = Pipeline(config, [], [pub.publish_estimate])
+        if rec is None:
+            pipeline = Pipeline(config, [], [pub.publish_estimate])
+        else:
+            pipeline = Pipeline(config, [rec.write_sample], [rec.write_estimate, pub.publish_estimate])
         runner = LiveRunner(pipeline, {"mavlink": source}, [lambda t, d: pub.publish_status(d)],
                             lambda: {"publisher": {"errors": pub.errors, "subscribed": pub.has_subscribers}})
         status = runner.run(lead + seconds)
         sender.wait(30)
     finally:
+        if rec is not None:
+            rec.close()
         for p in (sender, subscriber):
             if p.poll() is None:
                 p.kill()
@@ -113,6 +119,7 @@ def main() -> int:
     parser.add_argument("--live-seconds", type=float, default=20.0, help="length of the live run (default: 20)")
     parser.add_argument("--sim-seconds", type=float, default=30.0, help="length of the 400 Hz simulated flight replayed (default: 30)")
     parser.add_argument("--skip-live", action="store_true")
+    parser.add_argument("--record", action="store_true", help="live run records to MCAP too, as `run --record` does")
     args = parser.parse_args()
 
     rows: list[tuple[str, str, str, str]] = []
@@ -128,10 +135,11 @@ def main() -> int:
             rows.append((f"replay {name}", f"{r['imu_per_s']:,.0f} IMU samples/s ({r['imu']:,} in {r['seconds']:.2f} s)",
                          f">= {REPLAY_TARGET:,.0f}/s", f"{r['imu_per_s'] / REPLAY_TARGET:.2f}x"))
         if not args.skip_live:
-            live = bench_live(args.live_seconds, 400.0)
+            live = bench_live(args.live_seconds, 400.0, tmp_dir / "live.mcap" if args.record else None)
             st = live["status"]
             lat = st["latency"]
-            rows.append((f"live latency p50 ({st['estimates']} ticks, 400 Hz UDP in)", f"{lat['p50_ms']:.3f} ms", "", ""))
+            recording = ", recording" if args.record else ""
+            rows.append((f"live latency p50 ({st['estimates']} ticks, 400 Hz UDP in{recording})", f"{lat['p50_ms']:.3f} ms", "", ""))
             rows.append(("live latency p99", f"{lat['p99_ms']:.3f} ms", f"< {LATENCY_P99_TARGET_MS:g} ms",
                          f"{lat['p99_ms'] / LATENCY_P99_TARGET_MS:.2f}x of budget"))
             rows.append(("live latency max", f"{lat['max_ms']:.3f} ms", "", ""))
