@@ -17,10 +17,11 @@ Vec3 = tuple[float, float, float]
 Quat = tuple[float, float, float, float]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, order=True)
 class SourceId:
     """Where a sample comes from: transport ("mavlink", "dronecan", "sim"),
-    system id (CAN node id for DroneCAN), component id and sensor instance."""
+    system id (CAN node id for DroneCAN), component id and sensor instance.
+    Ordered by those fields, so that several sources are always fused in one order."""
 
     transport: str
     system: int

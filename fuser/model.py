@@ -69,6 +69,18 @@ def with_model_error(state: Bingham, tilt_variance: float, heading_variance: flo
     return Bingham(np.column_stack([M[:, :3][:, order], mode]), np.append(z[order], 0.0))
 
 
+def _norm(v: np.ndarray) -> float:
+    """Euclidean norm of one small vector (``np.linalg.norm`` costs several times more)."""
+    return math.sqrt(float(v @ v))
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of two 3-vectors (``np.cross`` costs ten times more on one pair)."""
+    ax, ay, az = a.tolist()
+    bx, by, bz = b.tolist()
+    return np.array([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx])
+
+
 def _rotation_noise(angle_variance: float) -> Bingham:
     """Isotropic rotation noise whose per-axis angle variance is ``angle_variance`` (rad^2).
 
@@ -86,7 +98,7 @@ class FusionModel:
         self.config = config
         self.filter = BinghamFilter(Bingham.uniform())
         self.counters: Counter[str] = Counter()
-        self._last_gyro: dict[SourceId, tuple[int, np.ndarray]] = {}  # time and rate of each IMU's last gyro sample
+        self._last_gyro: dict[SourceId, tuple[int, tuple[float, float, float]]] = {}  # time and rate of each IMU's last gyro sample
         self._clock_offset_ns: dict[SourceId, int] = {}  # least (tick time - sample time) seen: the loop's timeline
         self._noise_cache: dict[int, Bingham] = {}
         field = np.asarray(config.mag_field_ned_gauss, dtype=float)
@@ -129,7 +141,7 @@ class FusionModel:
         if with_mag:
             mags.append(self._in_last_body(with_mag, [s.mag_gauss for s in with_mag]))
         if mags and self.config.use_mag:
-            self._update_heading(np.mean(mags, axis=0))
+            self._update_heading(np.asarray(mags[0], dtype=float) if len(mags) == 1 else np.mean(mags, axis=0))
         if self.config.attitude_sigma_deg is not None:
             for s in samples:
                 if isinstance(s, AttitudeSample):
@@ -143,11 +155,12 @@ class FusionModel:
         which averaging in the moving frame would put into the tilt and heading measurements.
         Small-angle rotation at this tick's rate: ``v - (w dt) x v``."""
         v = np.asarray(vectors, dtype=float)
+        mean = v.sum(axis=0) / len(v)
         if self._raw_rate is None:
-            return v.mean(axis=0)
-        rate = self._raw_rate - self.gyro_bias
+            return mean
         behind = np.array([(self._last_gyro[s.source][0] - s.t_ns) * 1e-9 if s.source in self._last_gyro else 0.0 for s in imu])
-        return (v - np.cross(behind[:, None] * rate, v)).mean(axis=0)
+        # the rotation is linear in v: the mean of the turned vectors turns the time-weighted mean once
+        return mean - _cross(self._raw_rate - self.gyro_bias, behind @ v / len(v))
 
     def _detect_rest(self, accel: np.ndarray) -> None:
         """Rest detection and rest-phase bias estimation (VQF, sec. 3.3).
@@ -170,9 +183,9 @@ class FusionModel:
         self._rest_gyro_lp += a * (gyro - self._rest_gyro_lp)
         self._rest_accel_lp += a * (accel - self._rest_accel_lp)
         still = (
-            float(np.linalg.norm(gyro - self._rest_gyro_lp)) < cfg.rest_gyro_rad_s
-            and float(np.linalg.norm(self._rest_gyro_lp)) < cfg.rest_gyro_rad_s
-            and float(np.linalg.norm(accel - self._rest_accel_lp)) < cfg.rest_accel_m_s2
+            _norm(gyro - self._rest_gyro_lp) < cfg.rest_gyro_rad_s
+            and _norm(self._rest_gyro_lp) < cfg.rest_gyro_rad_s
+            and _norm(accel - self._rest_accel_lp) < cfg.rest_accel_m_s2
         )
         self._rest_s = self._rest_s + dt if still else 0.0
         self.at_rest = self._rest_s >= cfg.rest_min_s
@@ -223,11 +236,11 @@ class FusionModel:
         dt = self._dt = dt_ns * 1e-9
         self.bias_variance = min(self.bias_variance + cfg.gyro_bias_walk_rad_s_rt_s**2 * dt, cfg.gyro_bias_rad_s**2)
         rates = []
-        for source in sorted({s.source for s in imu}, key=repr):
+        for source in sorted({s.source for s in imu}):
             rotvec, covered = self._integrate(sorted((s for s in imu if s.source == source), key=lambda s: s.t_ns))
             if covered > 0.0:
                 rates.append(rotvec / covered)
-        self._raw_rate = np.mean(rates, axis=0) if rates else None
+        self._raw_rate = (sum(rates) / len(rates)) if rates else None
         # A bias error persists: over the correlation time tau it turns the
         # attitude by e*tau, the same as white noise of variance e^2 tau dt per
         # tick; (e dt)^2 would understate it by tau/dt and make the filter
@@ -236,7 +249,7 @@ class FusionModel:
         variance = cfg.gyro_noise_rad_s_rt_hz**2 * dt + self.bias_variance * correlation_s * dt
         if self._raw_rate is not None:
             rate = self._raw_rate - self.gyro_bias
-            self._rate = float(np.linalg.norm(rate))
+            self._rate = _norm(rate)
             u = quat.from_rotvec(rate * dt)
             self._q_gyro = quat.normalize(quat.multiply(self._q_gyro, u))
             variance += (cfg.gyro_scale_error * self._rate * dt) ** 2
@@ -255,10 +268,9 @@ class FusionModel:
         the preceding interval would lag the attitude by half a sample
         period, a degree at 600 deg/s and 286 Hz.
         """
-        rotvec = np.zeros(3)
-        covered = 0.0
+        x = y = z = covered = 0.0  # plain floats: a tick holds a handful of samples
         for s in samples:
-            rate = np.asarray(s.gyro_rad_s, dtype=float)
+            rate = s.gyro_rad_s
             last = self._last_gyro.get(s.source)
             self._last_gyro[s.source] = (s.t_ns, rate)
             if last is None:
@@ -267,9 +279,12 @@ class FusionModel:
             if not 0.0 < dt <= self.config.max_gyro_dt_s:
                 self.counters["gyro_gap"] += 1
                 continue
-            rotvec += 0.5 * (rate + last[1]) * dt
+            half = 0.5 * dt
+            x += half * (rate[0] + last[1][0])
+            y += half * (rate[1] + last[1][1])
+            z += half * (rate[2] + last[1][2])
             covered += dt
-        return rotvec, covered
+        return np.array([x, y, z]), covered
 
     def _published(self, imu: list[ImuSample], t_ns: int) -> Bingham:
         """The state carried from the last gyro sample to the tick time at that sample's rate.
@@ -284,7 +299,7 @@ class FusionModel:
         """
         if not imu:
             return self._model_error(self.filter.state)
-        source = min((s.source for s in imu), key=repr)
+        source = min(s.source for s in imu)
         last_ns, rate = self._last_gyro[source]
         gap = t_ns - last_ns
         offset = self._clock_offset_ns[source] = min(self._clock_offset_ns.get(source, gap), gap)
@@ -328,25 +343,26 @@ class FusionModel:
         """
         cfg = self.config
         tau = self._tilt_time_constant()
-        f_inertial = quat.rotate(self._q_gyro, accel)
+        to_inertial = quat.to_matrix(self._q_gyro)
+        f_inertial = to_inertial @ accel
         self._converged = self._converged or self._prior_doubt_deg < cfg.converged_deg
         converged = self._converged
         if self._acc_lp is None or not converged:
             self._acc_lp = f_inertial
         else:
             self._acc_lp += min(1.0, dt / tau) * (f_inertial - self._acc_lp)
-        norm = float(np.linalg.norm(self._acc_lp))
+        norm = _norm(self._acc_lp)
         error = abs(norm - GRAVITY_M_S2) / GRAVITY_M_S2
         if error > cfg.accel_gate:
             self.counters["accel_gated"] += 1
             return
-        filtered_body = quat.rotate(quat.conjugate(self._q_gyro), self._acc_lp)
+        filtered_body = self._acc_lp @ to_inertial
         self._down_body = -filtered_body / norm  # measured, for the magnetometer's dip check
         if converged:
             sigma = math.sqrt(self._tick_variance) * tau / max(dt, 1e-6)
         else:
             sigma = cfg.accel_sigma_rad
-        predicted_down = quat.rotate(quat.conjugate(self.filter.estimate), _DOWN)
+        predicted_down = quat.to_matrix(self.filter.estimate)[2]  # R^T e_z: world down in the body
         innovation = math.acos(max(-1.0, min(1.0, float(self._down_body @ predicted_down))))
         if self._tilt_known and not self._innovation_ok("accel", innovation, sigma):
             return
@@ -358,7 +374,7 @@ class FusionModel:
         if not self._tilt_known:
             self.counters["mag_before_tilt"] += 1
             return
-        norm = float(np.linalg.norm(mag))
+        norm = _norm(mag)
         if abs(norm - self._field_norm) > self.config.mag_norm_gate * self._field_norm:
             self.counters["mag_gated_norm"] += 1
             return
@@ -397,13 +413,13 @@ class FusionModel:
         self.filter.update(quat.normalize(q_wxyz), _rotation_noise(sigma * sigma))
 
     def _estimate(self, t_ns: int, state: Bingham) -> Estimate:
-        q = state.mode
+        q = tuple(state.mode.tolist())
         return Estimate(
             t_ns=t_ns,
-            q_wxyz=tuple(float(v) for v in q),  # type: ignore[arg-type]
-            M=tuple(tuple(float(v) for v in row) for row in state.M),
-            Z=tuple(float(v) for v in state.Z),  # type: ignore[arg-type]
+            q_wxyz=q,  # type: ignore[arg-type]
+            M=tuple(map(tuple, state.M.tolist())),  # type: ignore[arg-type]
+            Z=tuple(state.Z.tolist()),  # type: ignore[arg-type]
             uncertainty_deg=rms_angle_deg(state, self.filter.method),
-            euler_deg=tuple(math.degrees(a) for a in euler_from_quaternion(tuple(q))),  # type: ignore[arg-type]
+            euler_deg=tuple(math.degrees(a) for a in euler_from_quaternion(q)),  # type: ignore[arg-type]
             counters=dict(self.counters),
         )
