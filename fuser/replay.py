@@ -15,14 +15,14 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, TextIO
+from typing import Iterator, TextIO
 
 from drivers.samples import Sample
 from fuser.codec import decode_sample
 from fuser.config import FuserConfig
 from fuser.inputs import tlog_inputs
 from fuser.pipeline import Pipeline
-from fuser.record import INPUT_TOPICS, McapRecorder, RawMessage, read_log
+from fuser.record import INPUT_TOPICS, LogContents, McapRecorder, read_log
 
 __all__ = ["ReplaySummary", "replay"]
 
@@ -64,45 +64,35 @@ class _Progress:
             self.stream.write("\n")
 
 
-def _feed(pipeline: Pipeline, inputs: Iterable[tuple[Sample, int]], bar: _Progress) -> int:
-    """Feed decoded inputs (its input sinks record them); returns how many."""
-    samples, first_ns = 0, None
-    for sample, receive_ns in inputs:
-        pipeline.feed(sample, receive_ns)
-        samples += 1
-        first_ns = receive_ns if first_ns is None else first_ns
-        if samples % 4096 == 0:
-            bar.update(samples, (receive_ns - first_ns) * 1e-9)
-    return samples
-
-
-def _feed_copying(pipeline: Pipeline, recorder: McapRecorder, messages: Iterable[RawMessage], bar: _Progress) -> int:
-    """Feed an MCAP log's input messages, each copied unchanged to ``recorder`` where the pipeline would record it."""
-    def inputs() -> Iterable[tuple[Sample, int]]:
-        for m in messages:
-            sample, receive_ns = decode_sample(m.topic, json.loads(m.data))
-            pipeline.advance(receive_ns)  # the ticks due before the sample are recorded before it
-            recorder.write_message(m.topic, receive_ns, sample.t_ns, m.data)
-            yield sample, receive_ns
-
-    return _feed(pipeline, inputs(), bar)
+def _copied_inputs(contents: LogContents, pipeline: Pipeline, recorder: McapRecorder) -> Iterator[tuple[Sample, int]]:
+    """An MCAP log's inputs, each written unchanged to ``recorder`` where an input sink of the pipeline would write it."""
+    for m in contents.of(INPUT_TOPICS):
+        sample, receive_ns = decode_sample(m.topic, json.loads(m.data))
+        pipeline.advance(receive_ns)  # as in Pipeline.feed: the ticks due before the sample are recorded before it
+        recorder.write_message(m.topic, receive_ns, sample.t_ns, m.data)
+        yield sample, receive_ns
 
 
 def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: TextIO | None = sys.stderr) -> ReplaySummary:
     """Fuse every input of ``log`` (MCAP or .tlog) and record the result to ``out``."""
     bar = _Progress(progress)
     start = time.monotonic()
+    samples = 0
+    first_ns: int | None = None
     with McapRecorder(out, metadata={"source_log": Path(log).name}) as recorder:
         pipeline = Pipeline(config, [], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
-        if str(log).endswith(".tlog"):
+        contents = None if str(log).endswith(".tlog") else read_log(log)
+        if contents is None:
             pipeline.inputs.append(recorder.write_sample)
-            samples = _feed(pipeline, tlog_inputs(log), bar)
-            pipeline.finish()
-        else:
-            contents = read_log(log)
-            samples = _feed_copying(pipeline, recorder, contents.of(INPUT_TOPICS), bar)
-            pipeline.finish()
-            for truth in contents.of(("/truth/pose",)):
+        for sample, receive_ns in (tlog_inputs(log) if contents is None else _copied_inputs(contents, pipeline, recorder)):
+            pipeline.feed(sample, receive_ns)
+            samples += 1
+            first_ns = receive_ns if first_ns is None else first_ns
+            if samples % 4096 == 0:
+                bar.update(samples, (receive_ns - first_ns) * 1e-9)
+        pipeline.finish()
+        if contents is not None:
+            for truth in contents.of(["/truth/pose"]):
                 recorder.write_message(*truth)
     bar.done()
     counters = dict(pipeline.loop.counters) | dict(pipeline.loop.model.counters)
