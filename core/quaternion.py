@@ -77,7 +77,22 @@ def normalize(q: ArrayLike) -> NDArray[np.float64]:
 def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     """Hamilton product ``p q`` (apply ``q`` first, then ``p``)."""
     q = np.asarray(q, dtype=float)
+    if q.shape == (4,) and np.shape(p) == (4,):  # one pair, as in a filter loop: plain floats
+        return _multiply_one(np.asarray(p, dtype=float).tolist(), q.tolist())
     return (left_matrix(p) @ q[..., None])[..., 0]
+
+
+def _multiply_one(p: list[float], q: list[float]) -> NDArray[np.float64]:
+    pw, px, py, pz = p
+    qw, qx, qy, qz = q
+    return np.array(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ]
+    )
 
 
 def conjugate(q: ArrayLike) -> NDArray[np.float64]:
@@ -115,6 +130,16 @@ def rotate(q: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
 
 def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
     """Rotation matrix ``R`` with ``R @ v == rotate(q, v)``: the vector block of ``L(q) R(q)^T``."""
+    q = np.asarray(q, dtype=float)
+    if q.shape == (4,):  # one quaternion: the same entries written out, in plain floats
+        w, x, y, z = q.tolist()
+        return np.array(
+            [
+                [w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
+                [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z],
+            ]
+        )
     return (left_matrix(q) @ np.swapaxes(right_matrix(q), -1, -2))[..., 1:, 1:]
 
 
@@ -171,6 +196,11 @@ def from_rotvec(rotvec: ArrayLike) -> NDArray[np.float64]:
     increments keep full precision.
     """
     rotvec = np.asarray(rotvec, dtype=float)
+    if rotvec.shape == (3,):  # one rotation: plain floats
+        x, y, z = rotvec.tolist()
+        angle = math.sqrt(x * x + y * y + z * z)
+        sinc = 0.5 - angle * angle / 48.0 if angle < 1e-4 else math.sin(0.5 * angle) / angle
+        return np.array([math.cos(0.5 * angle), sinc * x, sinc * y, sinc * z])
     angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
     half = 0.5 * angle
     small = angle < 1e-4

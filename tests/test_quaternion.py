@@ -111,6 +111,10 @@ def test_vectorised_over_leading_axes():
     assert out.shape == (5, 3, 4)
     np.testing.assert_allclose(out[2, 1], quat.multiply(p[2, 1], q[2, 1]))
     assert quat.to_matrix(q).shape == (5, 3, 3, 3)
+    # one quaternion takes a plain-float path: it must agree with the batched one
+    np.testing.assert_allclose(quat.to_matrix(q)[2, 1], quat.to_matrix(q[2, 1]), atol=1e-15)
+    v = rng.normal(size=(4, 3)) * [[1.0], [1e-5], [3.0], [0.0]]
+    np.testing.assert_allclose(quat.from_rotvec(v), [quat.from_rotvec(row) for row in v], atol=1e-16)
 
 
 @pytest.mark.parametrize("bad", [[1, 0, 0], [np.nan, 0, 0, 1], [np.inf, 0, 0, 0], [2.0, 0, 0, 0]])
