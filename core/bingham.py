@@ -249,6 +249,19 @@ class Bingham:
         evals, evecs = np.linalg.eigh(self.C + C)
         return Bingham._trusted(evecs, evals)
 
+    def with_concentrations(self, z: ArrayLike) -> Bingham:
+        """The Bingham with the same mode and principal directions and new ``z_1..z_3`` (each <= 0).
+
+        ``z[i]`` goes with ``M[:, i]``; the result is re-sorted. Used to widen
+        or sharpen a distribution along its own axes without an
+        eigendecomposition.
+        """
+        z3 = np.asarray(z, dtype=float)
+        if z3.shape != (3,) or not (np.isfinite(z3).all() and (z3 <= 0.0).all()):
+            raise ValueError(f"z must be 3 finite entries <= 0, got {z}")
+        order = np.argsort(z3, kind="stable")
+        return Bingham._trusted(np.column_stack([self._M[:, order], self._M[:, 3]]), np.append(z3[order], 0.0))
+
     def rotate_left(self, u: ArrayLike) -> Bingham:
         """Distribution of ``u (x) x`` (QBF paper, sec. 5): ``M -> L(u) M``."""
         return Bingham._trusted(quat.left_matrix(quat.as_quaternion(u)) @ self._M, self._Z)

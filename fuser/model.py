@@ -29,8 +29,9 @@ from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
 from fuser.codec import Estimate
 from fuser.config import FuserConfig
+from fuser.model_error import ModelError
 
-__all__ = ["FusionModel", "GRAVITY_M_S2", "with_model_error"]
+__all__ = ["FusionModel", "GRAVITY_M_S2"]
 
 GRAVITY_M_S2 = 9.80665
 _DOWN = np.array([0.0, 0.0, 1.0])
@@ -38,35 +39,6 @@ _MIN_VARIANCE = 1e-18  # caps the noise concentration at 2e18 for a zero-length 
 _BIAS_LEARN_MAX_UNCERTAINTY_DEG = 5.0
 _DEFAULT_BIAS_CORRELATION_S = 10.0
 _MAX_BIAS = 0.2  # rad/s: beyond any MEMS gyro's bias; stops a wrong start from running away
-
-
-def with_model_error(state: Bingham, tilt_variance: float, heading_variance: float) -> Bingham:
-    """``state`` composed with an independent world-frame error of the model (a consider term).
-
-    Errors the filter cannot see in its innovations because they are
-    correlated for longer than it can average (the reference field's local
-    distortion, accelerometer bias and misalignment, linear acceleration
-    left after the low-pass) make the posterior too sure. Treating them as
-    an independent rotation error ``e`` with per-axis angle variances
-    ``tilt_variance`` (about the horizontal axes) and ``heading_variance``
-    (about world down), the published attitude is ``e (x) x``: in the
-    tangent space of the mode covariances add (a Schmidt consider update,
-    Maybeck, *Stochastic Models, Estimation and Control*, vol. 1, sec. 6.8,
-    without the cross terms). For a Bingham, ``E[y_i^2] = 1/(2|z_i|)`` along
-    its principal directions and a quarter of the angle variance along
-    the body axis ``vec(mode^-1 (x) m_i)`` is added there; the principal
-    directions are kept (the projection drops the model error's small
-    off-diagonal part), so no eigendecomposition is needed. An unknown
-    axis (``z_i = 0``) stays unknown.
-    """
-    M, Z = state.M, state.Z
-    mode = M[:, 3]
-    axes = (quat.left_matrix(quat.conjugate(mode)) @ M[:, :3])[1:]  # body-frame axis of each principal direction
-    down = quat.rotate(quat.conjugate(mode), _DOWN)
-    variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * (down @ axes) ** 2)
-    z = Z[:3] / (1.0 + 2.0 * np.abs(Z[:3]) * variance)
-    order = np.argsort(z, kind="stable")
-    return Bingham(np.column_stack([M[:, :3][:, order], mode]), np.append(z[order], 0.0))
 
 
 def _norm(v: np.ndarray) -> float:
@@ -123,6 +95,7 @@ class FusionModel:
         self._dt = 0.0
         self._prior_doubt_deg = 180.0
         self._rejected_s: Counter[str] = Counter()
+        self.model_error = ModelError(config)
 
     # -- one tick ---------------------------------------------------------------
     def step(self, samples: list[Sample], dt_ns: int, t_ns: int) -> Estimate:
@@ -250,6 +223,7 @@ class FusionModel:
         if self._raw_rate is not None:
             rate = self._raw_rate - self.gyro_bias
             self._rate = _norm(rate)
+            self.model_error.observe_rate(self._rate, dt)
             u = quat.from_rotvec(rate * dt)
             self._q_gyro = quat.normalize(quat.multiply(self._q_gyro, u))
             variance += (cfg.gyro_scale_error * self._rate * dt) ** 2
@@ -298,24 +272,15 @@ class FusionModel:
         estimate moves; the filter integrates on from the sample.
         """
         if not imu:
-            return self._model_error(self.filter.state)
+            return self.model_error.apply(self.filter.state)
         source = min(s.source for s in imu)
         last_ns, rate = self._last_gyro[source]
         gap = t_ns - last_ns
         offset = self._clock_offset_ns[source] = min(self._clock_offset_ns.get(source, gap), gap)
         lead = min((gap - offset) * 1e-9, self._dt)
         if lead <= 0.0:
-            return self._model_error(self.filter.state)
-        return self._model_error(self.filter.state.rotate_right(quat.from_rotvec((rate - self.gyro_bias) * lead)))
-
-    def _model_error(self, state: Bingham) -> Bingham:
-        """The published state: the filter's, with the model error of :func:`with_model_error`."""
-        cfg = self.config
-        tilt = math.radians(cfg.tilt_model_error_deg) ** 2
-        heading = math.radians(cfg.heading_model_error_deg) ** 2 if cfg.use_mag else 0.0
-        if tilt == 0.0 and heading == 0.0:
-            return state
-        return with_model_error(state, tilt, heading)
+            return self.model_error.apply(self.filter.state)
+        return self.model_error.apply(self.filter.state.rotate_right(quat.from_rotvec((rate - self.gyro_bias) * lead)))
 
     def _noise(self, variance: float) -> Bingham:
         key = round(math.log(variance) * 20)  # 5% steps: ticks repeat their length and the bias variance settles

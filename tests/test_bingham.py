@@ -238,3 +238,13 @@ def test_operations_never_produce_nan(z_a, z_b, seed):
         np.testing.assert_allclose(C.M.T @ C.M, np.eye(4), atol=1e-9)
         assert np.isfinite(C.entropy()) and np.isfinite(C.log_normalizer())
     assert np.isfinite(A.kl_divergence(B))
+
+
+def test_with_concentrations_keeps_the_axes_and_resorts():
+    A = random_bingham([-50.0, -20.0, -5.0])
+    B = A.with_concentrations([-1.0, -30.0, -5.0])  # z_1 now the weakest, z_2 the strongest
+    np.testing.assert_array_equal(B.mode, A.mode)
+    np.testing.assert_array_equal(B.Z, [-30.0, -5.0, -1.0, 0.0])
+    np.testing.assert_array_equal(B.M[:, :3], A.M[:, [1, 2, 0]])
+    with pytest.raises(ValueError):
+        A.with_concentrations([1.0, -2.0, -3.0])

@@ -10,7 +10,8 @@ from core.bingham import Bingham
 from core.filters import rms_angle_deg
 from drivers.samples import ImuSample, SourceId
 from fuser.config import FuserConfig
-from fuser.model import GRAVITY_M_S2, FusionModel, with_model_error
+from fuser.model import GRAVITY_M_S2, FusionModel
+from fuser.model_error import with_model_error
 
 SRC = SourceId("sim", 1, 1, 0)
 FIELD = np.array([0.21, 0.0, 0.43])

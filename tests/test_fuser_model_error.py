@@ -1,0 +1,61 @@
+"""The published model error (fuser/model_error.py): floors plus a term proportional to the recent rotation rate."""
+
+import math
+
+import numpy as np
+
+from core import quaternion as quat
+from drivers.samples import ImuSample, SourceId
+from fuser.config import FuserConfig
+from fuser.model import GRAVITY_M_S2, FusionModel
+from fuser.model_error import ModelError
+
+SRC = SourceId("sim", 1, 1, 0)
+FIELD = np.array([0.21, 0.0, 0.43])
+TICK = 10_000_000
+
+
+def spin(model: FusionModel, rate_rad_s: float, seconds: float) -> list:
+    """A level sensor turning about world down at ``rate_rad_s``: 4 IMU samples per tick, noise-free."""
+    out = []
+    for k in range(round(seconds * 100)):
+        samples = []
+        for j in range(1, 5):
+            t_ns = k * TICK + j * 2_500_000
+            q = quat.from_rotvec([0.0, 0.0, rate_rad_s * t_ns * 1e-9])
+            f = quat.rotate(quat.conjugate(q), [0.0, 0.0, -GRAVITY_M_S2])
+            m = quat.rotate(quat.conjugate(q), FIELD)
+            samples.append(ImuSample(t_ns, (0.0, 0.0, rate_rad_s), tuple(f), tuple(m), SRC))
+        out.append(model.step(samples, TICK, (k + 1) * TICK))
+    return out
+
+
+def test_rate_term_settles_to_the_configured_time_times_the_rate():
+    cfg = FuserConfig(tilt_model_error_deg=0.5, heading_model_error_deg=1.0, rate_model_error_s=0.004)
+    me = ModelError(cfg)
+    assert me.variances() == (math.radians(0.5) ** 2, math.radians(1.0) ** 2)  # at rest: the floors
+    for _ in range(3000):  # 30 s = 10 low-pass time constants at 5 rad/s
+        me.observe_rate(5.0, 0.01)
+    tilt, heading = me.variances()
+    assert math.isclose(tilt, math.radians(0.5) ** 2 + (0.004 * 5.0) ** 2, rel_tol=1e-3)
+    assert math.isclose(heading - tilt, math.radians(1.0) ** 2 - math.radians(0.5) ** 2, rel_tol=1e-9)
+    me.observe_rate(1.0, 0.0)  # a zero-length tick changes nothing and makes no NaN
+    assert me.variances() == (tilt, heading)
+
+
+def test_heading_floor_needs_a_magnetometer():
+    me = ModelError(FuserConfig(use_mag=False, heading_model_error_deg=2.0, tilt_model_error_deg=0.0))
+    assert me.variances() == (0.0, 0.0)
+
+
+def test_published_uncertainty_grows_with_the_rotation_rate_and_the_estimate_is_unchanged():
+    fast = spin(FusionModel(FuserConfig()), math.radians(400.0), 8.0)
+    flat = spin(FusionModel(FuserConfig(rate_model_error_s=0.0)), math.radians(400.0), 8.0)
+    slow = spin(FusionModel(FuserConfig()), math.radians(20.0), 8.0)
+    # 3.4 ms at 400 deg/s is 1.36 deg per axis once the 3-s low-pass has settled: on three axes it adds
+    # 3 * 1.36^2 deg^2 to the squared RMS angle
+    added = fast[-1].uncertainty_deg ** 2 - flat[-1].uncertainty_deg ** 2
+    assert 0.7 < added / (3 * math.degrees(0.0034 * math.radians(400.0)) ** 2) < 1.3
+    assert fast[-1].uncertainty_deg > slow[-1].uncertainty_deg + 0.5
+    assert quat.angular_distance(fast[-1].q_wxyz, flat[-1].q_wxyz) < 1e-9  # published-only: the filter is untouched
+    assert all(np.isfinite(e.uncertainty_deg) for e in fast)
