@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core import quaternion as quat
-from core.normalization import Method, fit_dispersion_trusted, log_normalizer, moments
+from core.normalization import Method, fit_dispersion_trusted, log_normalizer, moments_trusted
 from core.sampling import random_samples, unscented_samples
 
 __all__ = ["Bingham", "composition_inertia"]
@@ -195,7 +195,7 @@ class Bingham:
 
     def moments(self, method: Method = "saddlepoint") -> NDArray[np.float64]:
         """``E[(M^T x)_i^2]``: the eigenvalues of the inertia matrix (eq. 2)."""
-        return self._cached("moments", method, lambda: moments(self._Z, method))
+        return self._cached("moments", method, lambda: moments_trusted(self._Z, method))
 
     def _cached(self, name: str, method: Method, compute):
         key = (name, method)

@@ -32,7 +32,7 @@ from scipy import optimize
 
 from core import hopf_quadrature, saddlepoint
 
-__all__ = ["Method", "fit_dispersion", "fit_dispersion_trusted", "log_normalizer", "moments", "moments_jacobian", "METHODS"]
+__all__ = ["Method", "fit_dispersion", "fit_dispersion_trusted", "log_normalizer", "moments", "moments_jacobian", "moments_trusted", "METHODS"]
 
 Method = Literal["saddlepoint", "exact"]
 METHODS: tuple[str, ...] = ("saddlepoint", "exact")
@@ -78,12 +78,16 @@ def moments(z: ArrayLike, method: Method = "saddlepoint") -> NDArray[np.float64]
     approximated derivatives instead of the approximated ``N`` keeps the
     moments on the simplex, as the moments of unit vectors must be.
     """
-    arr = _as_z(z)
+    return moments_trusted(_as_z(z), method)
+
+
+def moments_trusted(z: NDArray[np.float64], method: Method) -> NDArray[np.float64]:
+    """:func:`moments` without checking ``z``, for one already checked (a :class:`~core.bingham.Bingham`'s)."""
+    if method == "saddlepoint":
+        grad = saddlepoint.derivatives(z, 1)[1]
+        return grad / grad.sum()
     _check_method(method)
-    if method == "exact":
-        return hopf_quadrature.log_normalizer_and_moments(arr)[1]
-    grad = saddlepoint.derivatives(arr, 1)[1]
-    return grad / grad.sum()
+    return hopf_quadrature.log_normalizer_and_moments(z)[1]
 
 
 def moments_jacobian(z: ArrayLike, method: Method = "saddlepoint") -> tuple[NDArray, NDArray]:

@@ -68,6 +68,11 @@ def as_quaternion(q: ArrayLike, *, unit: bool = True) -> NDArray[np.float64]:
 def normalize(q: ArrayLike) -> NDArray[np.float64]:
     """Scale ``q`` to unit length; raises ``ValueError`` for zero or non-finite input."""
     arr = as_quaternion(q, unit=False)
+    if arr.ndim == 1:
+        scale = math.sqrt(float(arr @ arr))
+        if scale == 0.0:
+            raise ValueError("cannot normalize a zero quaternion")
+        return arr / scale
     norm = np.linalg.norm(arr, axis=-1, keepdims=True)
     if np.any(norm == 0.0):
         raise ValueError("cannot normalize a zero quaternion")

@@ -209,8 +209,10 @@ class FusionModel:
         dt = self._dt = dt_ns * 1e-9
         self.bias_variance = min(self.bias_variance + cfg.gyro_bias_walk_rad_s_rt_s**2 * dt, cfg.gyro_bias_rad_s**2)
         rates = []
-        for source in sorted({s.source for s in imu}):
-            rotvec, covered = self._integrate(sorted((s for s in imu if s.source == source), key=lambda s: s.t_ns))
+        sources = {s.source for s in imu}
+        for source in sorted(sources):
+            mine = imu if len(sources) == 1 else [s for s in imu if s.source == source]
+            rotvec, covered = self._integrate(sorted(mine, key=lambda s: s.t_ns))
             if covered > 0.0:
                 rates.append(rotvec / covered)
         self._raw_rate = (sum(rates) / len(rates)) if rates else None
