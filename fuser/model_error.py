@@ -32,6 +32,8 @@ from fuser.config import FuserConfig
 
 __all__ = ["ModelError", "with_model_error"]
 
+_DOWN_PURE = np.array([0.0, 0.0, 0.0, 1.0])  # world down (NED z) as a pure quaternion
+
 
 def with_model_error(state: Bingham, tilt_variance: float, heading_variance: float) -> Bingham:
     """``state`` composed with an independent world-frame error of the model (a consider term).
@@ -49,10 +51,10 @@ def with_model_error(state: Bingham, tilt_variance: float, heading_variance: flo
     needed. An unknown axis (``z_i = 0``) stays unknown.
     """
     M, Z = state.M, state.Z
-    mode = M[:, 3]
-    axes = (quat.left_matrix(quat.conjugate(mode)) @ M[:, :3])[1:]  # body-frame axis of each principal direction
-    down = quat.to_matrix(mode)[2]  # world down in the body frame
-    variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * (down @ axes) ** 2)
+    # cosine between the body axis vec(mode^* m_i) of each principal direction and world down in
+    # the body, vec(mode^* k mode): left-multiplying by mode^* is orthogonal, so it is m_i . (k mode)
+    along_down = (quat.multiply(_DOWN_PURE, M[:, 3]) @ M[:, :3]) ** 2
+    variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * along_down)
     return state.with_concentrations(Z[:3] / (1.0 + 2.0 * np.abs(Z[:3]) * variance))
 
 
