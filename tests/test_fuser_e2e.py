@@ -155,6 +155,17 @@ def window_rms(err, t0_ns: int, start_s: float, end_s: float) -> float:
     return float(np.sqrt(np.mean(err.total_deg[keep] ** 2)))
 
 
+def stop_all(procs: tuple[Proc | None, ...], tap: StatusTap | None, fuser: FuserThread | None) -> None:
+    """Kill the helper processes, close the status tap and wait for the fuser thread: a test's cleanup."""
+    for p in procs:
+        if p is not None:
+            p.kill()
+    if tap is not None:
+        tap.close()
+    if fuser is not None:
+        fuser.join(15)
+
+
 def sender_start(sender: Proc, timeout: float = 30.0) -> float:
     """The Unix time the sender announced for its first sample (it prints it once the flight is built)."""
     def announced() -> bool:
@@ -211,13 +222,7 @@ def test_mavlink_udp_and_dronecan_virtual_bus_fused_and_received_over_zenoh(tmp_
         fuser.finish(10)
         time.sleep(0.2)  # the last estimates in flight to the listener
     finally:
-        for p in (listener, sender):
-            if p is not None:
-                p.kill()
-        if tap is not None:
-            tap.close()
-        if fuser is not None:
-            fuser.join(15)
+        stop_all((listener, sender), tap, fuser)
 
     report = sender.json_lines()[-1]
     assert report["max_late_ms"] < 100, f"sender could not keep pace: {report}"

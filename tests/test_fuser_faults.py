@@ -37,6 +37,7 @@ from test_fuser_e2e import (
     free_port,
     sender_start,
     sleep_until,
+    stop_all,
     wait_for,
     wait_listening,
 )
@@ -118,13 +119,7 @@ def test_link_outage_garbage_subscriber_restart_and_recorder_kill(tmp_path: Path
         time.sleep(0.2)
     finally:
         stop_garbage.set()
-        for p in (first, second, sender):
-            if p is not None:
-                p.kill()
-        if tap is not None:
-            tap.close()
-        if fuser is not None:
-            fuser.join(15)
+        stop_all((first, second, sender), tap, fuser)
         garbage.join(5)
 
     report = sender.json_lines()[-1]
