@@ -98,7 +98,7 @@ class FuserConfig:
     the path and the tilt error seen through the dip. These errors are correlated over
     ``mag_correlation_s``, so the per-tick sigma is ``mag_error sqrt(mag_correlation_s / dt)``: counted once
     per correlation time, not once per tick. Measured on BROAD 16 (fast translation): the magnetometer's
-    heading, with the true attitude, wanders 1-3 deg off over 10-30 s."""
+    heading (through the estimated tilt) sits 1-3 deg off the truth for 10-30 s at a time."""
     mag_correlation_s: float = 10.0
     """Correlation time of the magnetometer's heading error (see ``mag_error_deg``)."""
     heading_bias_error_deg: float = 1.5
