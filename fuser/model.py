@@ -355,9 +355,24 @@ class FusionModel:
         m_world = quat.rotate(q, mag)
         error = self._field_heading - math.atan2(m_world[1], m_world[0])
         error = math.remainder(error, 2.0 * math.pi)
-        if not self._innovation_ok("mag", abs(error), self.config.mag_sigma_rad):
+        sigma = self._heading_sigma()
+        if not self._innovation_ok("mag", abs(error), max(sigma, self.config.mag_sigma_rad)):
             return
-        self.filter.state = self.filter.state.times_exponent(heading_exponent(q, error, self.config.mag_sigma_rad))
+        self.filter.state = self.filter.state.times_exponent(heading_exponent(q, error, sigma))
+
+    def _heading_sigma(self) -> float:
+        """Per-tick heading sigma: ``mag_sigma_rad`` until converged; then the magnetometer's correlated
+        error counted once per correlation time, ``mag_error sqrt(T_c / dt)`` (a fixed per-tick sigma
+        counts errors that persist for seconds as independent and follows them), but never slower than a
+        correction time constant ``tau = heading_bias_error / bias sigma`` (``sigma^2 = q (tau/dt)^2`` for the
+        tick's process variance ``q``, as for the tilt), so that a poorly known bias is still held."""
+        cfg = self.config
+        dt = self._dt
+        if not self._converged or dt <= 0.0:
+            return cfg.mag_sigma_rad
+        correlated = math.radians(cfg.mag_error_deg) * math.sqrt(max(cfg.mag_correlation_s / dt, 1.0))
+        tau = math.radians(cfg.heading_bias_error_deg) / math.sqrt(max(self.bias_variance, _MIN_VARIANCE))
+        return min(correlated, math.sqrt(self._tick_variance) * tau / dt)
 
     def _innovation_ok(self, sensor: str, innovation_rad: float, sigma_rad: float) -> bool:
         """Chi-style gate: accept a reading within ``k`` sigma of the prediction (sensor and predicted

@@ -140,3 +140,19 @@ def test_gap_without_gyro_grows_uncertainty():
     for k in range(202, 300):
         after = model.step([], TICK, k * TICK).uncertainty_deg
     assert after > before + 5 and model.counters["no_gyro"] == gaps_before + 99
+
+
+def test_heading_sigma_counts_correlated_magnetometer_errors_once_per_correlation_time():
+    """Converged: mag_error sqrt(T_c / dt) per tick, lowered while the bias is poorly known; mag_sigma_rad before."""
+    cfg = FuserConfig()
+    model = FusionModel(cfg)
+    model.step([], TICK, TICK)
+    assert model._heading_sigma() == cfg.mag_sigma_rad  # not converged: a fast start
+    run_static(model, quat.from_rotvec([0.2, 0.1, 1.0]), 300)
+    model.bias_variance = 1e-5**2  # learnt at rest
+    assert model._heading_sigma() == pytest.approx(math.radians(cfg.mag_error_deg) * math.sqrt(cfg.mag_correlation_s / 0.01))
+    model.bias_variance = cfg.gyro_bias_rad_s**2  # unknown: correct within heading_bias_error / sigma_b
+    tau = math.radians(cfg.heading_bias_error_deg) / cfg.gyro_bias_rad_s
+    model._tick_variance = cfg.gyro_bias_rad_s**2 * cfg.bias_time_constant_s * 0.01  # the bias term of q
+    assert model._heading_sigma() == pytest.approx(math.sqrt(model._tick_variance) * tau / 0.01)
+    assert model._heading_sigma() < math.radians(cfg.mag_error_deg) * math.sqrt(cfg.mag_correlation_s / 0.01)
