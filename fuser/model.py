@@ -23,7 +23,7 @@ import numpy as np
 
 from core import quaternion as quat
 from core.bingham import Bingham
-from core.filters import BinghamFilter, rms_angle_deg
+from core.filters import BinghamFilter, identity_likelihood, rms_angle_deg
 from core.observations import heading_exponent, vector_exponent
 from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
@@ -78,6 +78,7 @@ class FusionModel:
         self._field_dip = math.asin(field[2] / self._field_norm)
         self._field_heading = math.atan2(field[1], field[0])
         self._tilt_known = False
+        self._evidence = np.zeros((4, 4))  # exponent of this tick's likelihoods, applied at once
         self.gyro_bias = np.zeros(3)
         self.bias_variance = config.gyro_bias_rad_s**2
         self._rate = 0.0
@@ -105,6 +106,9 @@ class FusionModel:
         self._predict(imu, dt_ns)
         predicted = self.filter.estimate
         prior_doubt_deg = self._prior_doubt_deg = rms_angle_deg(self.filter.state, self.filter.method)
+        # Every update below is gated and referenced against this prediction and adds its
+        # likelihood's exponent to self._evidence; the product of the tick's likelihoods is then
+        # one Bingham product (exponents add: QBF paper, sec. 5, eq. 3), one eigendecomposition.
         if imu:
             accel = self._in_last_body(imu, [s.accel_m_s2 for s in imu])
             self._detect_rest(accel)
@@ -119,6 +123,7 @@ class FusionModel:
             for s in samples:
                 if isinstance(s, AttitudeSample):
                     self._update_attitude(s.q_wxyz)
+        self._apply_evidence()
         self._learn_bias(predicted, prior_doubt_deg)
         return self._estimate(t_ns, self._published(imu, t_ns))
 
@@ -290,6 +295,12 @@ class FusionModel:
             self._noise_cache[key] = _rotation_noise(variance)
         return self._noise_cache[key]
 
+    def _apply_evidence(self) -> None:
+        """Multiply the likelihoods gathered so far into the state."""
+        if self._evidence.any():
+            self.filter.state = self.filter.state.times_exponent(self._evidence)
+            self._evidence = np.zeros((4, 4))
+
     def _update_gravity(self, accel: np.ndarray, dt: float) -> None:
         """Gravity direction update from the accelerometer, low-passed in a near-inertial frame.
 
@@ -307,6 +318,8 @@ class FusionModel:
         reported tilt uncertainty honest. Until the state first converges the
         raw reading is used with ``accel_sigma_rad``, for a fast start; never
         after, when a raw reading mid-manoeuvre is the misleading one.
+        The first tilt measurement is applied at once: the heading update that
+        follows in the same tick needs to know which way is down.
         """
         cfg = self.config
         tau = self._tilt_time_constant()
@@ -333,11 +346,15 @@ class FusionModel:
         innovation = math.acos(max(-1.0, min(1.0, float(self._down_body @ predicted_down))))
         if self._tilt_known and not self._innovation_ok("accel", innovation, sigma):
             return
-        self.filter.state = self.filter.state.times_exponent(vector_exponent(-filtered_body, _DOWN, sigma))
-        self._tilt_known = True
+        self._evidence += vector_exponent(-filtered_body, _DOWN, sigma)
         self._accel_trusted = converged and error < 0.5 * cfg.accel_gate
+        if not self._tilt_known:
+            self._apply_evidence()
+            self._tilt_known = True
 
     def _update_heading(self, mag: np.ndarray) -> None:
+        """Yaw-only update (:func:`core.observations.heading_exponent`) against the predicted attitude,
+        once a previous tick has measured the tilt (a heading needs to know which way is down)."""
         if not self._tilt_known:
             self.counters["mag_before_tilt"] += 1
             return
@@ -358,7 +375,7 @@ class FusionModel:
         sigma = self._heading_sigma()
         if not self._innovation_ok("mag", abs(error), max(sigma, self.config.mag_sigma_rad)):
             return
-        self.filter.state = self.filter.state.times_exponent(heading_exponent(q, error, sigma))
+        self._evidence += heading_exponent(q, error, sigma)
 
     def _heading_sigma(self) -> float:
         """Per-tick heading sigma: ``mag_sigma_rad`` until converged; then the magnetometer's correlated
@@ -392,7 +409,7 @@ class FusionModel:
 
     def _update_attitude(self, q_wxyz: tuple[float, float, float, float]) -> None:
         sigma = math.radians(self.config.attitude_sigma_deg or 0.0)
-        self.filter.update(quat.normalize(q_wxyz), _rotation_noise(sigma * sigma))
+        self._evidence += identity_likelihood(quat.normalize(q_wxyz), _rotation_noise(sigma * sigma)).C
 
     def _estimate(self, t_ns: int, state: Bingham) -> Estimate:
         q = tuple(state.mode.tolist())
