@@ -324,6 +324,17 @@ def parse_sets(items: list[str]) -> dict:
     return out
 
 
+def model_revision() -> str:
+    """The git commit of the code measured, "+changes" if core/, drivers/ or fuser/ differ from it
+    (the benchmark's own outputs, plots and RESULTS.md, do not count)."""
+    import subprocess
+
+    git = ["git", "-C", str(ROOT)]
+    rev = subprocess.run([*git, "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
+    changed = subprocess.run([*git, "diff", "--quiet", "HEAD", "--", "core", "drivers", "fuser"]).returncode != 0
+    return (rev or "?") + ("+changes" if changed else "")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--trials", default=str(ROOT.parent / "shared" / "data" / "broad"), help="folder of BROAD .hdf5 trials")
@@ -365,9 +376,7 @@ def main(argv=None) -> int:
                   f"cover 50/90/95 {100 * c['cov50']:.0f}/{100 * c['cov90']:.0f}/{100 * c['cov95']:.0f} ll {c['loglik']:.1f} | "
                   f"{r['speed_us']['bingham']:.0f}/{r['speed_us']['vqf']:.1f}/{r['speed_us']['madgwick']:.0f} us/sample | {time.perf_counter() - start:.0f} s",
                   flush=True)
-    import subprocess
-
-    rev = subprocess.run(["git", "-C", str(ROOT), "describe", "--always", "--dirty"], capture_output=True, text=True).stdout.strip()
+    rev = model_revision()
     note = f"model at git {rev or '?'}; " + ("defaults" if not (args.config or sets) else f"{args.config or ''} {sets}") + \
         " + per-trial reference field measured by the importer from the first 2 s"
     lines = table(results, note)
