@@ -5,7 +5,8 @@
 
 (a) Replay throughput, end to end: decode every input from the MCAP, run the
     loop, write inputs and estimates to a new MCAP; IMU samples per second of
-    wall time on one core, for each log in logs/ and a 400 Hz simulated flight.
+    wall time on one core (fastest of three runs), for each log in logs/ and a
+    400 Hz simulated flight.
     Target: >= 10,000 IMU samples/s.
 (b) Live latency: 400 Hz HIGHRES_IMU over UDP from a sender process
     (`bingham-fuser sim --send`), the 100 Hz loop, estimates published on zenoh
@@ -54,10 +55,12 @@ def sim_log(path: Path, seconds: float, imu_hz: float) -> None:
         run_sim(pipeline, simulate(SimConfig(duration_s=seconds, imu_rate_hz=imu_hz)), "mavlink", 0, [rec.write_truth])
 
 
-def bench_replay(log: Path, out: Path) -> dict:
+def bench_replay(log: Path, out: Path, repeats: int = 3) -> dict:
+    """The fastest of ``repeats`` replays (as timeit does): on a shared machine the slower runs
+    measure the other jobs, and one run of a 12 s log varies by 15%."""
     imu = len(read_log(log).of(["/input/imu"]))
-    summary = replay(log, out, FuserConfig(), progress=None)
-    return {"imu": imu, "samples": summary.samples, "seconds": summary.seconds, "imu_per_s": imu / summary.seconds}
+    fastest = min((replay(log, out, FuserConfig(), progress=None) for _ in range(repeats)), key=lambda s: s.seconds)
+    return {"imu": imu, "samples": fastest.samples, "seconds": fastest.seconds, "imu_per_s": imu / fastest.seconds}
 
 
 def profile_replay(log: Path, out: Path, top: int = 18) -> str:
