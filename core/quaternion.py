@@ -216,6 +216,11 @@ def from_rotvec(rotvec: ArrayLike) -> NDArray[np.float64]:
 def to_rotvec(q: ArrayLike) -> NDArray[np.float64]:
     """Rotation vector (angle in [0, pi] times axis) of ``q``; ``q`` and ``-q`` agree."""
     q = np.asarray(q, dtype=float)
+    if q.shape == (4,):  # one rotation: plain floats
+        w, x, y, z = q.tolist() if q[0] >= 0 else (-q).tolist()
+        vec_norm = math.sqrt(x * x + y * y + z * z)
+        scale = 2.0 / w if vec_norm < 1e-8 else 2.0 * math.atan2(vec_norm, w) / vec_norm
+        return np.array([scale * x, scale * y, scale * z])
     q = np.where(q[..., :1] < 0, -q, q)
     vec_norm = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
     angle = 2.0 * np.arctan2(vec_norm, q[..., :1])

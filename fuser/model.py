@@ -203,7 +203,7 @@ class FusionModel:
         if prior_doubt_deg > _BIAS_LEARN_MAX_UNCERTAINTY_DEG:
             return  # the prediction was a guess (uniform start, after a gap): its correction is not drift
         correction = quat.to_rotvec(quat.multiply(quat.conjugate(predicted), self.filter.estimate))
-        self.gyro_bias = np.clip(self.gyro_bias - correction / cfg.bias_time_constant_s, -_MAX_BIAS, _MAX_BIAS)
+        self.gyro_bias = np.minimum(np.maximum(self.gyro_bias - correction / cfg.bias_time_constant_s, -_MAX_BIAS), _MAX_BIAS)
         # learning for a tick shrinks the bias uncertainty towards its floor with the same time constant
         # (never raises it: a bias learnt at rest is known better than feedback can tell)
         decay = min(1.0, self._dt / cfg.bias_time_constant_s)

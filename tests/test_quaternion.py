@@ -115,6 +115,8 @@ def test_vectorised_over_leading_axes():
     np.testing.assert_allclose(quat.to_matrix(q)[2, 1], quat.to_matrix(q[2, 1]), atol=1e-15)
     v = rng.normal(size=(4, 3)) * [[1.0], [1e-5], [3.0], [0.0]]
     np.testing.assert_allclose(quat.from_rotvec(v), [quat.from_rotvec(row) for row in v], atol=1e-16)
+    r = quat.from_rotvec(v) * [[1.0], [-1.0], [1.0], [-1.0]]  # both signs of each rotation
+    np.testing.assert_allclose(quat.to_rotvec(r), [quat.to_rotvec(row) for row in r], atol=1e-15)
 
 
 @pytest.mark.parametrize("bad", [[1, 0, 0], [np.nan, 0, 0, 1], [np.inf, 0, 0, 0], [2.0, 0, 0, 0]])
