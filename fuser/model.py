@@ -109,14 +109,16 @@ class FusionModel:
         # Every update below is gated and referenced against this prediction and adds its
         # likelihood's exponent to self._evidence; the product of the tick's likelihoods is then
         # one Bingham product (exponents add: QBF paper, sec. 5, eq. 3), one eigendecomposition.
+        lags = self._lags(imu)
         if imu:
-            accel = self._in_last_body(imu, [s.accel_m_s2 for s in imu])
+            accel = self._in_last_body([s.accel_m_s2 for s in imu], lags)
             self._detect_rest(accel)
             self._update_gravity(accel, dt_ns * 1e-9)
         with_mag = [s for s in imu if s.mag_gauss is not None]
         mags = [s.mag_gauss for s in samples if isinstance(s, MagSample)]
         if with_mag:
-            mags.append(self._in_last_body(with_mag, [s.mag_gauss for s in with_mag]))
+            mag_lags = lags if len(with_mag) == len(imu) else self._lags(with_mag)
+            mags.append(self._in_last_body([s.mag_gauss for s in with_mag], mag_lags))
         if mags and self.config.use_mag:
             self._update_heading(np.asarray(mags[0], dtype=float) if len(mags) == 1 else np.mean(mags, axis=0))
         if self.config.attitude_sigma_deg is not None:
@@ -127,18 +129,21 @@ class FusionModel:
         self._learn_bias(predicted, prior_doubt_deg)
         return self._estimate(t_ns, self._published(imu, t_ns))
 
-    def _in_last_body(self, imu: list[ImuSample], vectors: list) -> np.ndarray:
-        """Mean of the IMU samples' body-frame vectors, each turned into the body frame of its IMU's last
-        gyro sample (the state's time): at 600 deg/s the body turns 3 degrees in half a 10-ms tick,
-        which averaging in the moving frame would put into the tilt and heading measurements.
+    def _lags(self, imu: list[ImuSample]) -> np.ndarray:
+        """Seconds each sample lies behind its IMU's last gyro sample (the state's time)."""
+        return np.array([(self._last_gyro[s.source][0] - s.t_ns) * 1e-9 if s.source in self._last_gyro else 0.0 for s in imu])
+
+    def _in_last_body(self, vectors: list, lags: np.ndarray) -> np.ndarray:
+        """Mean of samples' body-frame vectors, each turned into the body frame of the state's time
+        (``lags`` seconds later): at 600 deg/s the body turns 3 degrees in half a 10-ms tick, which
+        averaging in the moving frame would put into the tilt and heading measurements.
         Small-angle rotation at this tick's rate: ``v - (w dt) x v``."""
         v = np.asarray(vectors, dtype=float)
         mean = v.sum(axis=0) / len(v)
         if self._raw_rate is None:
             return mean
-        behind = np.array([(self._last_gyro[s.source][0] - s.t_ns) * 1e-9 if s.source in self._last_gyro else 0.0 for s in imu])
-        # the rotation is linear in v: the mean of the turned vectors turns the time-weighted mean once
-        return mean - _cross(self._raw_rate - self.gyro_bias, behind @ v / len(v))
+        # the rotation is linear in v: the mean of the turned vectors turns the lag-weighted mean once
+        return mean - _cross(self._raw_rate - self.gyro_bias, lags @ v / len(v))
 
     def _detect_rest(self, accel: np.ndarray) -> None:
         """Rest detection and rest-phase bias estimation (VQF, sec. 3.3).
