@@ -106,14 +106,17 @@ def test_subscribe_and_listen_in_process(publisher: ZenohPublisher, endpoint: st
     got: list[Estimate] = []
     statuses: list[dict] = []
     sent = estimates(5, seed=5)
+    status = {"ticks": 5, "recorder_alive": False}
     with subscribe(zenoh_config(connect=[endpoint]), "*", got.append, statuses.append):
         wait_for(lambda: publisher.has_subscribers)
         for est in sent:
             publisher.publish_estimate(est)
-        publisher.publish_status({"ticks": 5, "recorder_alive": False})
-        wait_for(lambda: len(got) == 5 and len(statuses) == 1)
+        wait_for(lambda: len(got) == 5)
+        # the status subscriber is declared after the attitude one and may match a moment later:
+        # publish until one status has arrived
+        wait_for(lambda: publisher.publish_status(status) or bool(statuses))
     assert got == sent
-    assert statuses == [{"ticks": 5, "recorder_alive": False}]
+    assert statuses and all(s == status for s in statuses)
 
     # listen() prints one line per estimate; publish until it has printed 3 (its session connects when it can).
     out = io.StringIO()
