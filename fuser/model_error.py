@@ -30,9 +30,24 @@ from core import quaternion as quat
 from core.bingham import Bingham
 from fuser.config import FuserConfig
 
-__all__ = ["ModelError", "with_model_error"]
+__all__ = ["ModelError", "model_error_variances", "widened_concentrations", "with_model_error"]
 
 _DOWN_PURE = np.array([0.0, 0.0, 0.0, 1.0])  # world down (NED z) as a pure quaternion
+
+
+def widened_concentrations(M: np.ndarray, Z: np.ndarray, tilt_variance, heading_variance) -> np.ndarray:
+    """The first three concentrations of the Bingham ``(M, Z)`` with a world-frame model error added.
+
+    Works on one state (``M`` 4x4, ``Z`` 4) or a stack (``M`` n x 4 x 4, ``Z``
+    n x 4, variances scalars or length n); see :func:`with_model_error`.
+    """
+    # cosine between the body axis vec(mode^* m_i) of each principal direction and world down in
+    # the body, vec(mode^* k mode): left-multiplying by mode^* is orthogonal, so it is m_i . (k mode)
+    down_mode = quat.multiply(_DOWN_PURE, M[..., :, 3])
+    along_down = ((down_mode[..., None, :] @ M[..., :, :3])[..., 0, :]) ** 2
+    tilt = np.asarray(tilt_variance, dtype=float)[..., None]
+    variance = 0.25 * (tilt + (np.asarray(heading_variance, dtype=float)[..., None] - tilt) * along_down)
+    return Z[..., :3] / (1.0 + 2.0 * np.abs(Z[..., :3]) * variance)
 
 
 def with_model_error(state: Bingham, tilt_variance: float, heading_variance: float) -> Bingham:
@@ -50,12 +65,15 @@ def with_model_error(state: Bingham, tilt_variance: float, heading_variance: flo
     the model error's small off-diagonal part), so no eigendecomposition is
     needed. An unknown axis (``z_i = 0``) stays unknown.
     """
-    M, Z = state.M, state.Z
-    # cosine between the body axis vec(mode^* m_i) of each principal direction and world down in
-    # the body, vec(mode^* k mode): left-multiplying by mode^* is orthogonal, so it is m_i . (k mode)
-    along_down = (quat.multiply(_DOWN_PURE, M[:, 3]) @ M[:, :3]) ** 2
-    variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * along_down)
-    return state.with_concentrations(Z[:3] / (1.0 + 2.0 * np.abs(Z[:3]) * variance))
+    return state.with_concentrations(widened_concentrations(state.M, state.Z, tilt_variance, heading_variance))
+
+
+def model_error_variances(config: FuserConfig, rate_sq):
+    """Per-axis angle variances (rad^2), tilt and heading, of :class:`ModelError` at a mean squared
+    rotation rate ``rate_sq`` ((rad/s)^2; a scalar or an array)."""
+    rate = (config.rate_model_error_s**2) * rate_sq
+    heading_floor = math.radians(config.heading_model_error_deg) ** 2 if config.use_mag else 0.0
+    return math.radians(config.tilt_model_error_deg) ** 2 + rate, heading_floor + rate
 
 
 class ModelError:
@@ -81,8 +99,6 @@ class ModelError:
 
     def __init__(self, config: FuserConfig) -> None:
         self.config = config
-        self._tilt_floor = math.radians(config.tilt_model_error_deg) ** 2
-        self._heading_floor = math.radians(config.heading_model_error_deg) ** 2 if config.use_mag else 0.0
         self._rate_sq = 0.0  # low-passed squared rotation rate, (rad/s)^2
 
     def observe_rate(self, rate_rad_s: float, dt: float) -> None:
@@ -90,10 +106,14 @@ class ModelError:
         a = min(1.0, dt / self.config.accel_lowpass_s) if self.config.accel_lowpass_s > 0 else 1.0
         self._rate_sq += a * (rate_rad_s * rate_rad_s - self._rate_sq)
 
+    @property
+    def recent_rate_rad_s(self) -> float:
+        """RMS of the bias-corrected rotation rate over the last ``accel_lowpass_s`` (rad/s)."""
+        return math.sqrt(self._rate_sq)
+
     def variances(self) -> tuple[float, float]:
         """Per-axis angle variances (rad^2): tilt (horizontal axes) and heading (about down)."""
-        rate = (self.config.rate_model_error_s**2) * self._rate_sq
-        return self._tilt_floor + rate, self._heading_floor + rate
+        return model_error_variances(self.config, self._rate_sq)
 
     def apply(self, state: Bingham) -> Bingham:
         """The published state: ``state`` with this tick's model error (:func:`with_model_error`)."""

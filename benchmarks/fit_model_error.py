@@ -1,0 +1,177 @@
+#!/usr/bin/env python3
+"""Fit the published model error (``fuser/model_error.py``) on the BROAD trials, with leave-one-out.
+
+The model error is a consider term: it widens the published Bingham and
+never feeds back into the filter. So the filter is run once per trial with
+no model error (through the importer and the same pipeline as replay), the
+state and the recent rotation rate of every tick are kept, and any
+parameter set ``(heading floor, tilt floor, rate constant)`` is then scored
+exactly, offline, on the movement phases:
+
+* **mean log-likelihood** of the truth (a proper scoring rule), with the
+  concentrated-limit density ``sum z_i y_i^2 + 1/2 sum log|z_i|`` (the
+  Bingham log-density up to a constant for large ``|z|``; ``benchmarks/broad.py``
+  reports the exact one), averaged per trial, then over trials;
+* **coverage** of the 50/90/95 % credible regions (``-2 x^T C x`` against
+  chi-square with 3 degrees of freedom, as in ``benchmarks/broad.py``),
+  averaged the same way.
+
+It prints the maximum-likelihood set, the maximum-likelihood set among those
+whose three coverages lie within ``--within`` points of nominal (issue 7's
+criterion), the configured defaults, and leave-one-trial-out figures for
+both fits (each trial scored with the parameters fitted on the others).
+
+Data: BROAD (Laidig et al., *Data* 6(7):72, 2021, doi:10.3390/data6070072, CC-BY-4.0).
+
+    python benchmarks/fit_model_error.py          # ~2 min on the 8 shared trials
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import chi2
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from broad import interp_quat  # noqa: E402
+from fuser.codec import Estimate, decode_sample  # noqa: E402
+from fuser.config import FuserConfig  # noqa: E402
+from fuser.importers import BROAD_ATTRIBUTION, broad_quat_to_ned, read_broad, write_mcap  # noqa: E402
+from fuser.model_error import model_error_variances, widened_concentrations  # noqa: E402
+from fuser.pipeline import Pipeline  # noqa: E402
+from fuser.record import INPUT_TOPICS, read_log  # noqa: E402
+from fuser.replay import MAX_CATCH_UP_TICKS  # noqa: E402
+
+LEVELS = np.array([0.5, 0.9, 0.95])
+THRESHOLDS = chi2.ppf(LEVELS, 3)
+HEADING_DEG = np.arange(0.5, 5.01, 0.25)
+TILT_DEG = np.arange(0.0, 0.51, 0.05)
+RATE_S = np.arange(0.0, 0.00401, 0.00025)
+
+
+@dataclass
+class TrialStates:
+    """The unwidened filter state, recent rotation rate and truth at each scored tick of one trial."""
+
+    name: str
+    M: np.ndarray
+    Z: np.ndarray
+    rate_sq: np.ndarray
+    q_true: np.ndarray
+
+
+def run_unwidened(path: Path, workdir: Path) -> TrialStates:
+    """One trial through import and the replay pipeline with no model error, keeping every tick."""
+    data = read_broad(path, 0.0, None)
+    mcap = workdir / f"{path.stem}.mcap"
+    summary = write_mcap(data, mcap)
+    config = FuserConfig(tilt_model_error_deg=0.0, heading_model_error_deg=0.0, rate_model_error_s=0.0,
+                         mag_field_ned_gauss=tuple(summary.mag_field_ned_gauss))
+    ticks: list[tuple[Estimate, float]] = []
+    pipeline = Pipeline(config, max_catch_up_ticks=MAX_CATCH_UP_TICKS)
+    model = pipeline.loop.model
+    pipeline.outputs.append(lambda est: ticks.append((est, model.model_error.recent_rate_rad_s**2)))
+    for m in read_log(mcap).of(INPUT_TOPICS):
+        pipeline.feed(*decode_sample(m.topic, json.loads(m.data)))
+    pipeline.finish()
+    ticks = [(e, r) for e, r in ticks if e.sensor_t_ns is not None]
+    fs = 1e9 / 3_500_000  # BROAD: exactly 3500 us per sample
+    x = np.array([e.sensor_t_ns for e, _ in ticks]) * 1e-9 * fs
+    inside = (x >= 0) & (x <= len(data.extra["q_es"]) - 1)
+    q_true, ok = interp_quat(data.extra["q_es"], x[inside])
+    movement = data.extra["movement"][np.clip(np.round(x[inside]).astype(int), 0, len(data.extra["movement"]) - 1)]
+    keep = np.nonzero(inside)[0][ok & movement]
+    return TrialStates(
+        name=path.stem,
+        M=np.array([ticks[i][0].M for i in keep]),
+        Z=np.array([ticks[i][0].Z for i in keep]),
+        rate_sq=np.array([ticks[i][1] for i in keep]),
+        q_true=broad_quat_to_ned(q_true[ok & movement]),
+    )
+
+
+def score(trial: TrialStates, config: FuserConfig) -> tuple[np.ndarray, float]:
+    """Coverage (%) of the 50/90/95 % regions and mean log-likelihood (up to a constant) of the truth."""
+    tilt, heading = model_error_variances(config, trial.rate_sq)
+    z = widened_concentrations(trial.M, trial.Z, tilt, heading)
+    y = np.einsum("nij,ni->nj", trial.M[:, :, :3], trial.q_true)
+    exponent = np.sum(z * y * y, axis=1)
+    coverage = 100.0 * np.mean(-2.0 * exponent[:, None] <= THRESHOLDS, axis=0)
+    loglik = float(np.mean(exponent + 0.5 * np.sum(np.log(np.abs(z)), axis=1)))
+    return coverage, loglik
+
+
+def grid_scores(trials: list[TrialStates]) -> tuple[list[tuple[float, float, float]], np.ndarray, np.ndarray]:
+    """Every parameter set of the grid with its per-trial coverage (sets x trials x 3) and log-likelihood."""
+    params, cov, ll = [], [], []
+    for h in HEADING_DEG:
+        for t in TILT_DEG:
+            for r in RATE_S:
+                config = FuserConfig(heading_model_error_deg=float(h), tilt_model_error_deg=float(t), rate_model_error_s=float(r))
+                scores = [score(trial, config) for trial in trials]
+                params.append((float(h), float(t), float(r)))
+                cov.append([c for c, _ in scores])
+                ll.append([l for _, l in scores])
+    return params, np.array(cov), np.array(ll)
+
+
+def best(cov: np.ndarray, ll: np.ndarray, fit_on: np.ndarray, within: float | None) -> int:
+    """Index of the set with the highest mean log-likelihood on ``fit_on`` trials (optionally with every
+    mean coverage within ``within`` points of nominal there)."""
+    objective = ll[:, fit_on].mean(axis=1)
+    if within is not None:
+        deviation = np.abs(cov[:, fit_on].mean(axis=1) - 100.0 * LEVELS).max(axis=1)
+        objective = np.where(deviation <= within, objective, -np.inf)
+    return int(np.argmax(objective))
+
+
+def describe(label: str, p: tuple[float, float, float], cov: np.ndarray, ll: np.ndarray) -> str:
+    c = cov.mean(axis=0)
+    return (f"{label:34s} heading {p[0]:4.2f} deg  tilt {p[1]:4.2f} deg  rate {1e3 * p[2]:4.2f} ms | "
+            f"cover {c[0]:4.1f} / {c[1]:4.1f} / {c[2]:4.1f} | log-lik {ll.mean():6.3f}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--trials", default=str(ROOT.parent / "shared" / "data" / "broad"), help="folder of BROAD .hdf5 trials")
+    ap.add_argument("--within", type=float, default=5.0, help="coverage tolerance in points for the constrained fit")
+    args = ap.parse_args(argv)
+    paths = sorted(Path(args.trials).glob("*.hdf5"))
+    if not paths:
+        print(f"no .hdf5 trials in {args.trials}", file=sys.stderr)
+        return 2
+    print(f"BROAD: {len(paths)} trials from {args.trials}\n{BROAD_ATTRIBUTION}\n", flush=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        trials = [run_unwidened(p, Path(tmp)) for p in paths]
+    params, cov, ll = grid_scores(trials)
+    n = len(trials)
+    everyone = np.ones(n, bool)
+    default = FuserConfig()
+    scores = [score(t, default) for t in trials]
+    d = (default.heading_model_error_deg, default.tilt_model_error_deg, default.rate_model_error_s)
+    print(describe("configured defaults", d, np.array([c for c, _ in scores]), np.array([l for _, l in scores])))
+    for label, within in (("maximum likelihood", None), (f"max. likelihood, within {args.within:g} points", args.within)):
+        i = best(cov, ll, everyone, within)
+        print(describe(label, params[i], cov[i], ll[i]))
+        held = [best(cov, ll, np.arange(n) != k, within) for k in range(n)]
+        loo_cov = np.array([cov[j, k] for k, j in enumerate(held)])
+        loo_ll = np.array([ll[j, k] for k, j in enumerate(held)])
+        print(f"  leave one trial out: cover {' / '.join(f'{c:4.1f}' for c in loo_cov.mean(axis=0))} | log-lik {loo_ll.mean():6.3f}")
+        for k, t in enumerate(trials):
+            h = params[held[k]]
+            print(f"    {t.name:36s} in-sample {' / '.join(f'{c:3.0f}' for c in cov[i, k])}   held out "
+                  f"{' / '.join(f'{c:3.0f}' for c in loo_cov[k])} (fit on the others: {h[0]:.2f} deg, {h[1]:.2f} deg, {1e3 * h[2]:.2f} ms)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
