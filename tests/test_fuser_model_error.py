@@ -8,7 +8,8 @@ from core import quaternion as quat
 from drivers.samples import ImuSample, SourceId
 from fuser.config import FuserConfig
 from fuser.model import GRAVITY_M_S2, FusionModel
-from fuser.model_error import ModelError
+from core.bingham import Bingham
+from fuser.model_error import ModelError, widened_concentrations, with_model_error
 
 SRC = SourceId("sim", 1, 1, 0)
 FIELD = np.array([0.21, 0.0, 0.43])
@@ -60,3 +61,13 @@ def test_published_uncertainty_grows_with_the_rotation_rate_and_the_estimate_is_
     assert fast[-1].uncertainty_deg > slow[-1].uncertainty_deg + 0.5
     assert quat.angular_distance(fast[-1].q_wxyz, flat[-1].q_wxyz) < 1e-9  # published-only: the filter is untouched
     assert all(np.isfinite(e.uncertainty_deg) for e in fast)
+
+
+def test_stacked_widening_matches_one_state_at_a_time():
+    """``widened_concentrations`` on a stack (as benchmarks/fit_model_error.py scores) is the per-tick path."""
+    rng = np.random.default_rng(5)
+    states = [Bingham.from_mode(quat.from_rotvec(rng.normal(size=3)), -np.sort(rng.uniform(1.0, 1e5, 3))[::-1]) for _ in range(6)]
+    tilt, heading = rng.uniform(0.0, 1e-3, 6), rng.uniform(0.0, 1e-2, 6)
+    stacked = widened_concentrations(np.array([b.M for b in states]), np.array([b.Z for b in states]), tilt, heading)
+    for k, b in enumerate(states):
+        np.testing.assert_allclose(np.sort(stacked[k]), np.sort(with_model_error(b, tilt[k], heading[k]).Z[:3]), rtol=1e-12)
