@@ -70,4 +70,6 @@ def test_stacked_widening_matches_one_state_at_a_time():
     tilt, heading = rng.uniform(0.0, 1e-3, 6), rng.uniform(0.0, 1e-2, 6)
     stacked = widened_concentrations(np.array([b.M for b in states]), np.array([b.Z for b in states]), tilt, heading)
     for k, b in enumerate(states):
-        np.testing.assert_allclose(np.sort(stacked[k]), np.sort(with_model_error(b, tilt[k], heading[k]).Z[:3]), rtol=1e-12)
+        expected = with_model_error(b, tilt[k], heading[k])
+        exponent = b.M @ np.diag(np.r_[stacked[k], 0.0]) @ b.M.T  # same principal directions, widened
+        np.testing.assert_allclose(exponent, expected.M @ np.diag(expected.Z) @ expected.M.T, rtol=1e-10, atol=1e-9)
