@@ -102,7 +102,7 @@ def run_unwidened(path: Path, workdir: Path) -> TrialStates:
 def score(trial: TrialStates, config: FuserConfig) -> tuple[np.ndarray, float]:
     """Coverage (%) of the 50/90/95 % regions and mean log-likelihood (up to a constant) of the truth."""
     tilt, heading = model_error_variances(config, trial.rate_sq)
-    z = widened_concentrations(trial.M, trial.Z, tilt, heading)
+    z = widened_concentrations(trial.M, trial.Z, tilt[:, None], heading[:, None])
     y = np.einsum("nij,ni->nj", trial.M[:, :, :3], trial.q_true)
     exponent = np.sum(z * y * y, axis=1)
     coverage = 100.0 * np.mean(-2.0 * exponent[:, None] <= THRESHOLDS, axis=0)

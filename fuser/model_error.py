@@ -38,15 +38,14 @@ _DOWN_PURE = np.array([0.0, 0.0, 0.0, 1.0])  # world down (NED z) as a pure quat
 def widened_concentrations(M: np.ndarray, Z: np.ndarray, tilt_variance, heading_variance) -> np.ndarray:
     """The first three concentrations of the Bingham ``(M, Z)`` with a world-frame model error added.
 
-    Works on one state (``M`` 4x4, ``Z`` 4) or a stack (``M`` n x 4 x 4, ``Z``
-    n x 4, variances scalars or length n); see :func:`with_model_error`.
+    Works on one state (``M`` 4x4, ``Z`` 4, scalar variances) or a stack (``M``
+    n x 4 x 4, ``Z`` n x 4, variances scalars or n x 1); see :func:`with_model_error`.
     """
     # cosine between the body axis vec(mode^* m_i) of each principal direction and world down in
     # the body, vec(mode^* k mode): left-multiplying by mode^* is orthogonal, so it is m_i . (k mode)
     down_mode = quat.multiply(_DOWN_PURE, M[..., :, 3])
     along_down = ((down_mode[..., None, :] @ M[..., :, :3])[..., 0, :]) ** 2
-    tilt = np.asarray(tilt_variance, dtype=float)[..., None]
-    variance = 0.25 * (tilt + (np.asarray(heading_variance, dtype=float)[..., None] - tilt) * along_down)
+    variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * along_down)
     return Z[..., :3] / (1.0 + 2.0 * np.abs(Z[..., :3]) * variance)
 
 

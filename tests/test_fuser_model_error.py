@@ -68,7 +68,7 @@ def test_stacked_widening_matches_one_state_at_a_time():
     rng = np.random.default_rng(5)
     states = [Bingham.from_mode(quat.from_rotvec(rng.normal(size=3)), -np.sort(rng.uniform(1.0, 1e5, 3))[::-1]) for _ in range(6)]
     tilt, heading = rng.uniform(0.0, 1e-3, 6), rng.uniform(0.0, 1e-2, 6)
-    stacked = widened_concentrations(np.array([b.M for b in states]), np.array([b.Z for b in states]), tilt, heading)
+    stacked = widened_concentrations(np.array([b.M for b in states]), np.array([b.Z for b in states]), tilt[:, None], heading[:, None])
     for k, b in enumerate(states):
         expected = with_model_error(b, tilt[k], heading[k])
         exponent = b.M @ np.diag(np.r_[stacked[k], 0.0]) @ b.M.T  # same principal directions, widened
