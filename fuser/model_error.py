@@ -67,7 +67,7 @@ def with_model_error(state: Bingham, tilt_variance: float, heading_variance: flo
     return state.with_concentrations(widened_concentrations(state.M, state.Z, tilt_variance, heading_variance))
 
 
-def model_error_variances(config: FuserConfig, rate_sq):
+def model_error_variances(config: FuserConfig, rate_sq: float | np.ndarray) -> tuple[float | np.ndarray, float | np.ndarray]:
     """Per-axis angle variances (rad^2), tilt and heading, of :class:`ModelError` at a mean squared
     rotation rate ``rate_sq`` ((rad/s)^2; a scalar or an array)."""
     rate = (config.rate_model_error_s**2) * rate_sq

@@ -5,10 +5,10 @@ import math
 import numpy as np
 
 from core import quaternion as quat
+from core.bingham import Bingham
 from drivers.samples import ImuSample, SourceId
 from fuser.config import FuserConfig
 from fuser.model import GRAVITY_M_S2, FusionModel
-from core.bingham import Bingham
 from fuser.model_error import ModelError, widened_concentrations, with_model_error
 
 SRC = SourceId("sim", 1, 1, 0)
