@@ -5,13 +5,14 @@ from .dronecan_decode import DroneCanDecoder
 from .dronecan_encode import encode_dronecan
 from .mavlink_decode import MavlinkDecoder
 from .mavlink_encode import MavlinkEncoder, encode_mavlink
-from .samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
+from .samples import AttitudeSample, GnssSample, ImuSample, MagSample, Sample, SourceId
 from .sources import DroneCanSource, MavlinkSource
 
 __all__ = [
     "AttitudeSample",
     "DroneCanDecoder",
     "DroneCanSource",
+    "GnssSample",
     "ImuSample",
     "MagSample",
     "MavlinkDecoder",

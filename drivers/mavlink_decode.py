@@ -1,4 +1,5 @@
-"""MAVLink bytes to samples: ATTITUDE, ATTITUDE_QUATERNION, HIGHRES_IMU, SCALED_IMU/2/3, RAW_IMU.
+"""MAVLink bytes to samples: ATTITUDE, ATTITUDE_QUATERNION, HIGHRES_IMU, SCALED_IMU/2/3, RAW_IMU,
+GPS_RAW_INT, GLOBAL_POSITION_INT.
 
 Unit scaling, as the message definitions document it:
 
@@ -10,6 +11,8 @@ SCALED_IMU[2,3]     time_boot_ms (uint32)   mrad/s, mG (g=9.80665)      mgauss
 RAW_IMU             time_usec (us)          mrad/s, mG (as ArduPilot)   mgauss
 ATTITUDE            time_boot_ms (uint32)   roll/pitch/yaw rad (3-2-1)  -
 ATTITUDE_QUATERNION time_boot_ms (uint32)   q1..q4 = w, x, y, z         -
+GPS_RAW_INT         time_usec (us)          vel cm/s, cog cdeg (no down) lat/lon degE7, alt mm
+GLOBAL_POSITION_INT time_boot_ms (uint32)   vx, vy, vz cm/s NED         lat/lon degE7, alt mm
 ==================  ======================  ==========================  ============
 """
 
@@ -17,17 +20,20 @@ from __future__ import annotations
 
 import importlib
 import logging
+import math
 from typing import Any, Callable
 
 from .decoder import Decoder
 from .euler import quaternion_from_euler
-from .samples import AttitudeSample, ImuSample, Sample, SourceId, Vec3
+from .samples import AttitudeSample, GnssSample, ImuSample, Sample, SourceId, Vec3
 from .timebase import NS_PER_US, StreamClock
 from .validation import (
     ACCEL_MAX_M_S2,
+    GNSS_VELOCITY_MAX_M_S,
     GYRO_MAX_RAD_S,
     MAG_MAX_GAUSS,
     Rejected,
+    check_position,
     check_quaternion,
     check_vector,
 )
@@ -40,6 +46,12 @@ MILLI = 1e-3
 HIGHRES_MAG_BITS = 0x1C0
 """HIGHRES_IMU ``fields_updated`` bits 6-8: the magnetometer axes are new in this message."""
 SCALED_IMU_INSTANCE = {"SCALED_IMU": 0, "SCALED_IMU2": 1, "SCALED_IMU3": 2}
+DEG_E7 = 1e-7
+CENTI = 1e-2
+UINT16_UNKNOWN = 0xFFFF
+"""GPS_RAW_INT's ``vel`` and ``cog`` when the receiver does not know them."""
+FIX_2D = 2
+"""GPS_FIX_TYPE of the first fix that carries a velocity."""
 _ANGLE_LIMIT = 7.0  # radians; MAVLink Euler angles are within +-pi
 
 
@@ -89,6 +101,8 @@ class MavlinkDecoder(Decoder):
             mod.MAVLink_attitude_quaternion_message: self._attitude_quaternion,
             mod.MAVLink_highres_imu_message: self._highres_imu,
             mod.MAVLink_raw_imu_message: self._raw_imu,
+            mod.MAVLink_gps_raw_int_message: self._gps_raw_int,
+            mod.MAVLink_global_position_int_message: self._global_position_int,
         }
         for name in SCALED_IMU_INSTANCE:
             self._handlers[getattr(mod, f"MAVLink_{name.lower()}_message")] = self._scaled_imu
@@ -184,3 +198,27 @@ class MavlinkDecoder(Decoder):
         q = check_quaternion((m.q1, m.q2, m.q3, m.q4))
         clock, source = self._stream_of(m)
         return AttitudeSample(clock.stamp_ms_u32(m.time_boot_ms), q, source)
+
+    def _position(self, m: Any) -> tuple[float | None, float | None, float | None]:
+        """WGS84 latitude, longitude (degE7) and MSL altitude (mm) of a GNSS message; all None for 0, 0 (unknown)."""
+        if m.lat == 0 and m.lon == 0:
+            return None, None, None
+        return check_position(m.lat * DEG_E7, m.lon * DEG_E7, m.alt * MILLI)
+
+    def _gps_raw_int(self, m: Any) -> GnssSample:
+        """A receiver's fix: ground speed along the course over ground (no vertical velocity)."""
+        vel = None
+        if m.fix_type >= FIX_2D and m.vel != UINT16_UNKNOWN and m.cog != UINT16_UNKNOWN:
+            speed, course = m.vel * CENTI, math.radians(m.cog * CENTI)
+            vel = check_vector("gnss_velocity", (speed * math.cos(course), speed * math.sin(course), 0.0), GNSS_VELOCITY_MAX_M_S)
+        accuracy = getattr(m, "vel_acc", 0) * MILLI or None  # extension field, 0 = unknown
+        lat, lon, alt = self._position(m) if m.fix_type >= FIX_2D else (None, None, None)
+        clock, source = self._stream_of(m)
+        return GnssSample(clock.stamp(m.time_usec * NS_PER_US), m.fix_type, vel, False, accuracy, lat, lon, alt, False, source)
+
+    def _global_position_int(self, m: Any) -> GnssSample:
+        """The autopilot's fused navigation solution: NED velocity, position (fix type 3 by definition)."""
+        vel = check_vector("gnss_velocity", (m.vx * CENTI, m.vy * CENTI, m.vz * CENTI), GNSS_VELOCITY_MAX_M_S)
+        lat, lon, alt = self._position(m)
+        clock, source = self._stream_of(m)
+        return GnssSample(clock.stamp_ms_u32(m.time_boot_ms), 3, vel, True, None, lat, lon, alt, True, source)

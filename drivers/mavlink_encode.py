@@ -5,13 +5,16 @@ from __future__ import annotations
 from typing import Any
 
 from .euler import euler_from_quaternion
-from .mavlink_decode import HIGHRES_MAG_BITS, MG_TO_M_S2, MILLI, SCALED_IMU_INSTANCE, dialect_module
-from .samples import AttitudeSample, ImuSample, Sample, Vec3
+import math
+
+from .mavlink_decode import CENTI, DEG_E7, HIGHRES_MAG_BITS, MG_TO_M_S2, MILLI, SCALED_IMU_INSTANCE, UINT16_UNKNOWN, dialect_module
+from .samples import AttitudeSample, GnssSample, ImuSample, Sample, Vec3
 from .timebase import NS_PER_MS, NS_PER_US
 
 HIGHRES_ACCEL_GYRO_BITS = 0x3F
 IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", *SCALED_IMU_INSTANCE)
 ATTITUDE_MESSAGES = ("ATTITUDE_QUATERNION", "ATTITUDE")
+GNSS_MESSAGES = ("GPS_RAW_INT", "GLOBAL_POSITION_INT")
 _INT16 = 32767
 
 
@@ -42,6 +45,8 @@ class MavlinkEncoder:
             return self._imu_message(sample, message or "HIGHRES_IMU")
         if isinstance(sample, AttitudeSample):
             return self._attitude_message(sample, message or "ATTITUDE_QUATERNION")
+        if isinstance(sample, GnssSample):
+            return self._gnss_message(sample, message or "GPS_RAW_INT")
         raise TypeError(f"MAVLink carries magnetometer data inside IMU messages, not {type(sample).__name__}")
 
     def _imu_message(self, s: ImuSample, message: str) -> Any:
@@ -67,6 +72,28 @@ class MavlinkEncoder:
         if message == "ATTITUDE":
             return m.MAVLink_attitude_message(self._time_boot_ms(s.t_ns), *euler_from_quaternion(s.q_wxyz), 0.0, 0.0, 0.0)
         raise ValueError(f"{message!r} is not one of {ATTITUDE_MESSAGES}")
+
+    def _gnss_message(self, s: GnssSample, message: str) -> Any:
+        m = self._mod
+        lat, lon = (0, 0) if s.lat_deg is None else (round(s.lat_deg / DEG_E7), round(s.lon_deg / DEG_E7))  # type: ignore[operator]
+        alt_mm = 0 if s.alt_m is None else round(s.alt_m / MILLI)
+        vn, ve, vd = s.vel_ned_m_s or (0.0, 0.0, 0.0)
+        if message == "GPS_RAW_INT":
+            if s.vel_ned_m_s is None:
+                vel, cog = UINT16_UNKNOWN, UINT16_UNKNOWN
+            else:
+                vel = round(math.hypot(vn, ve) / CENTI)
+                cog = round(math.degrees(math.atan2(ve, vn)) % 360.0 / CENTI) % 36000
+            vel_acc = 0 if s.speed_accuracy_m_s is None else round(s.speed_accuracy_m_s / MILLI)
+            return m.MAVLink_gps_raw_int_message(
+                s.t_ns // NS_PER_US, s.fix_type, lat, lon, alt_mm, UINT16_UNKNOWN, UINT16_UNKNOWN, vel, cog, 10,
+                alt_mm, 0, 0, vel_acc, 0, 0,
+            )
+        if message == "GLOBAL_POSITION_INT":
+            return m.MAVLink_global_position_int_message(
+                self._time_boot_ms(s.t_ns), lat, lon, alt_mm, 0, round(vn / CENTI), round(ve / CENTI), round(vd / CENTI), UINT16_UNKNOWN
+            )
+        raise ValueError(f"{message!r} is not one of {GNSS_MESSAGES}")
 
     @staticmethod
     def _time_boot_ms(t_ns: int) -> int:

@@ -58,4 +58,31 @@ class AttitudeSample:
     source: SourceId
 
 
-Sample = Union[ImuSample, MagSample, AttitudeSample]
+@dataclass(frozen=True, slots=True)
+class GnssSample:
+    """A GNSS receiver's velocity (and position) solution.
+
+    ``vel_ned_m_s`` is the velocity over ground, north-east-down, m/s, or None when the message
+    carries no valid velocity (no fix, unknown speed or course). ``vertical_velocity`` says whether
+    its down component was measured (GPS_RAW_INT carries ground speed and course only; down is
+    then 0.0 and must not be used). ``speed_accuracy_m_s`` is the receiver's one-sigma speed
+    accuracy where the message has one. ``fix_type`` follows MAVLink's GPS_FIX_TYPE (0 no GPS,
+    1 no fix, 2 2-D, 3 3-D, 4 DGPS, 5 RTK float, 6 RTK fixed). Position (WGS84 latitude and
+    longitude in degrees, altitude above mean sea level in metres) is None where unknown; the
+    fuser uses it only for the earth's magnetic field. ``filtered`` marks an autopilot's fused
+    navigation solution (GLOBAL_POSITION_INT) rather than a receiver's own fix.
+    """
+
+    t_ns: int
+    fix_type: int
+    vel_ned_m_s: Vec3 | None
+    vertical_velocity: bool
+    speed_accuracy_m_s: float | None
+    lat_deg: float | None
+    lon_deg: float | None
+    alt_m: float | None
+    filtered: bool
+    source: SourceId
+
+
+Sample = Union[ImuSample, MagSample, AttitudeSample, GnssSample]

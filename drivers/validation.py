@@ -17,6 +17,8 @@ ACCEL_MAX_M_S2 = 160.0
 """Per axis; 16 g full scale is 157 m/s^2."""
 MAG_MAX_GAUSS = 10.0
 """Per axis; the Earth's field is below 0.7 gauss."""
+GNSS_VELOCITY_MAX_M_S = 300.0
+"""Per axis; well above any UAV (and below the 515 m/s export limit of civil receivers)."""
 QUAT_NORM_TOL = 0.05
 """Largest accepted | |q| - 1 |; accepted quaternions are renormalised."""
 
@@ -53,3 +55,10 @@ def check_quaternion(q: Quat) -> Quat:
     if not all(math.isfinite(c) for c in q):
         raise Rejected("non_finite", f"quaternion {q}")
     raise Rejected("quaternion_norm", f"norm {n:.6g} of {q}")
+
+
+def check_position(lat_deg: float, lon_deg: float, alt_m: float) -> tuple[float, float, float]:
+    """Return a WGS84 position if it is on the earth (altitude -1 km to 100 km), else raise ``Rejected``."""
+    if -90.0 <= lat_deg <= 90.0 and -180.0 <= lon_deg <= 180.0 and -1_000.0 <= alt_m <= 100_000.0:
+        return lat_deg, lon_deg, alt_m
+    raise _fail("position", (lat_deg, lon_deg, alt_m))

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
 
-from drivers.samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
+from drivers.samples import AttitudeSample, GnssSample, ImuSample, MagSample, Sample, SourceId
 
 __all__ = ["Estimate", "decode_sample", "dumps", "encode_sample", "sample_channel"]
 
@@ -34,7 +34,11 @@ def _source(s: SourceId) -> dict[str, Any]:
 
 def sample_channel(sample: Sample) -> str:
     """MCAP topic of a sample type."""
-    return {ImuSample: "/input/imu", MagSample: "/input/mag", AttitudeSample: "/input/attitude"}[type(sample)]
+    return _CHANNELS[type(sample)]
+
+
+_CHANNELS = {ImuSample: "/input/imu", MagSample: "/input/mag", AttitudeSample: "/input/attitude", GnssSample: "/input/gnss"}
+_GNSS_FIELDS = ("fix_type", "vertical_velocity", "speed_accuracy_m_s", "lat_deg", "lon_deg", "alt_m", "filtered")
 
 
 def encode_sample(sample: Sample, receive_ns: int) -> dict[str, Any]:
@@ -46,6 +50,10 @@ def encode_sample(sample: Sample, receive_ns: int) -> dict[str, Any]:
         out["mag_gauss"] = None if sample.mag_gauss is None else list(sample.mag_gauss)
     elif isinstance(sample, MagSample):
         out["mag_gauss"] = list(sample.mag_gauss)
+    elif isinstance(sample, GnssSample):
+        out["vel_ned_m_s"] = None if sample.vel_ned_m_s is None else list(sample.vel_ned_m_s)
+        for name in _GNSS_FIELDS:
+            out[name] = getattr(sample, name)
     else:
         out["q_wxyz"] = list(sample.q_wxyz)
     return out
@@ -73,6 +81,10 @@ def decode_sample(topic: str, d: dict[str, Any]) -> tuple[Sample, int]:
         sample = MagSample(t_ns, _vec(d["mag_gauss"]), src)  # type: ignore[arg-type]
     elif topic == "/input/attitude":
         sample = AttitudeSample(t_ns, _vec(d["q_wxyz"]), src)  # type: ignore[arg-type]
+    elif topic == "/input/gnss":
+        vel = d["vel_ned_m_s"]
+        sample = GnssSample(t_ns, vel_ned_m_s=None if vel is None else _vec(vel), source=src,  # type: ignore[arg-type]
+                            **{name: d[name] for name in _GNSS_FIELDS})
     else:
         raise ValueError(f"not an input topic: {topic}")
     return sample, int(d["receive_ns"])

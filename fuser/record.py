@@ -41,7 +41,7 @@ __all__ = ["CHANNELS", "LogContents", "McapRecorder", "RawMessage", "RecorderPro
 log = logging.getLogger(__name__)
 
 FRAME_ID = "ned"
-INPUT_TOPICS = ("/input/imu", "/input/mag", "/input/attitude")
+INPUT_TOPICS = ("/input/imu", "/input/mag", "/input/attitude", "/input/gnss")
 
 _NUM = {"type": "number"}
 _INT = {"type": "integer"}
@@ -127,6 +127,20 @@ CHANNELS: dict[str, dict[str, Any]] = {
     "/input/mag": _input_schema("bingham_fuser.MagSample", "magnetometer sample, body FRD", {"mag_gauss": _array(3, "gauss")}),
     "/input/attitude": _input_schema(
         "bingham_fuser.AttitudeSample", "attitude from an autopilot", {"q_wxyz": _array(4, "w,x,y,z body FRD to NED")}
+    ),
+    "/input/gnss": _input_schema(
+        "bingham_fuser.GnssSample",
+        "GNSS velocity (and position) solution, world NED",
+        {
+            "fix_type": {**_INT, "description": "MAVLink GPS_FIX_TYPE: 0 no GPS, 1 no fix, 2 2-D, 3 3-D, 4 DGPS, 5/6 RTK"},
+            "vel_ned_m_s": {"anyOf": [_array(3, "velocity north, east, down, m/s"), {"type": "null"}]},
+            "vertical_velocity": {"type": "boolean", "description": "whether the down velocity was measured"},
+            "speed_accuracy_m_s": {"type": ["number", "null"], "description": "one-sigma speed accuracy, m/s"},
+            "lat_deg": {"type": ["number", "null"], "description": "WGS84 latitude, degrees"},
+            "lon_deg": {"type": ["number", "null"], "description": "WGS84 longitude, degrees"},
+            "alt_m": {"type": ["number", "null"], "description": "altitude above mean sea level, m"},
+            "filtered": {"type": "boolean", "description": "an autopilot's fused solution, not a receiver's fix"},
+        },
     ),
     "/estimate": ESTIMATE,
     "/pose": POSE_IN_FRAME,
