@@ -27,18 +27,25 @@ check it against a Monte Carlo of exact Bingham draws (``core.sampling``).
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from core import quaternion as quat
-from core.bingham import Bingham
-from core.normalization import Method
+
+if TYPE_CHECKING:
+    from core.normalization import Method
 
 __all__ = [
+    "BODY_FRAME",
+    "DISPLAY_FRAME",
     "Q_ENU_NED",
     "Q_FRD_FLU",
     "R_ENU_NED",
+    "TRUTH_OFFSET_NED_M",
+    "WORLD_FRAME",
+    "body_transforms",
     "enu_flu_from_ned_frd",
     "flu_from_frd",
     "orientation_covariance_ned",
@@ -70,6 +77,8 @@ def orientation_covariance_ned(
     M: ArrayLike, Z: ArrayLike, q_ned_frd: ArrayLike, method: Method = "saddlepoint"
 ) -> NDArray[np.float64]:
     """3x3 covariance (rad^2) of the NED-frame rotation from ``q_ned_frd`` to the truth, under ``Bingham(M, Z)``."""
+    from core.bingham import Bingham  # here, not at the top: the recorder's process uses this module's frames only
+
     inertia = Bingham(M, Z).inertia(method)
     A = quat.right_matrix(quat.conjugate(q_ned_frd))[1:, :]
     cov = 4.0 * A @ inertia @ A.T
@@ -82,3 +91,31 @@ def orientation_covariance_enu(
     """The same covariance about the ENU axes: ``R_ENU_NED C R_ENU_NED^T`` (the error rotation's
     vector part is rotated by ``Q_ENU_NED``; the body-side ``Q_FRD_FLU`` cancels in ``q (x) m*``)."""
     return R_ENU_NED @ orientation_covariance_ned(M, Z, q_ned_frd, method) @ R_ENU_NED.T
+
+
+# -- the frame tree of the Foxglove views (live and recorded) -----------------------------------
+DISPLAY_FRAME = "enu"
+"""Root of the 3D view: z up, so the scene is upright."""
+WORLD_FRAME = "ned"
+"""The fuser's world frame, a child of ``enu`` rotated by ``Q_ENU_NED``; poses are in it."""
+BODY_FRAME = "body"
+"""The estimate's body frame (FRD), at the origin of ``ned``."""
+TRUTH_OFFSET_NED_M = (0.0, 1.0, 0.0)
+"""The truth's (or reference's) body frame sits 1 m east of the estimate's, so the two triads do not overlap."""
+
+
+def body_transforms(child_frame: str, q_ned_frd: ArrayLike, translation_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                    ) -> list[tuple[str, str, tuple[float, float, float], tuple[float, float, float, float]]]:
+    """``(parent, child, translation xyz, rotation xyzw)`` of ``enu -> ned`` and ``ned -> child_frame``.
+
+    Foxglove's FrameTransform maps a point of the child into the parent (rotation, then
+    translation), so each rotation is the child's attitude in its parent: ``Q_ENU_NED`` and
+    ``q_ned_frd``. The fixed ``enu -> ned`` edge goes with every body so that any one message
+    places the body in the upright display frame.
+    """
+    w0, x0, y0, z0 = (float(c) for c in Q_ENU_NED)
+    w, x, y, z = (float(c) for c in q_ned_frd)
+    return [
+        (DISPLAY_FRAME, WORLD_FRAME, (0.0, 0.0, 0.0), (x0, y0, z0, w0)),
+        (WORLD_FRAME, child_frame, tuple(float(c) for c in translation_ned_m), (x, y, z, w)),  # type: ignore[misc]
+    ]
