@@ -29,9 +29,6 @@ from typing import Any
 from drivers.samples import ImuSample, Sample, SourceId
 from fuser.codec import Estimate
 
-os.environ.setdefault("MAVLINK20", "1")  # mavutil speaks MAVLink 1 unless told before its first import
-from pymavlink import mavutil  # noqa: E402
-
 __all__ = ["MavlinkOut", "MavlinkOutSettings"]
 
 log = logging.getLogger(__name__)
@@ -84,6 +81,10 @@ class MavlinkOut:
         self._gyro_source: SourceId | None = None
         self._t0_ns: int | None = None
         self._conn: Any = None
+        os.environ.setdefault("MAVLINK20", "1")  # mavutil speaks MAVLink 1 unless told before its first import
+        from pymavlink import mavutil  # here: importing the settings (fuser.config does) needs no pymavlink
+
+        self._mavlink = mavutil.mavlink
         try:
             self._conn = mavutil.mavlink_connection(
                 settings.connection, dialect="common", source_system=settings.system_id or DEFAULT_SYSTEM_ID,
@@ -125,8 +126,8 @@ class MavlinkOut:
         try:
             if t >= self._next_heartbeat_ns:
                 self._next_heartbeat_ns = _next(self._next_heartbeat_ns, HEARTBEAT_PERIOD_NS, t)
-                mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_ONBOARD_CONTROLLER, mavutil.mavlink.MAV_AUTOPILOT_INVALID,
-                                   0, 0, mavutil.mavlink.MAV_STATE_ACTIVE)
+                ml = self._mavlink
+                mav.heartbeat_send(ml.MAV_TYPE_ONBOARD_CONTROLLER, ml.MAV_AUTOPILOT_INVALID, 0, 0, ml.MAV_STATE_ACTIVE)
                 self.sent += 1
             if t >= self._next_attitude_ns:
                 self._next_attitude_ns = _next(self._next_attitude_ns, self._period_ns, t)

@@ -218,7 +218,7 @@ class Ros2Publisher:
             import xxhash  # noqa: F401
             from rosbags.typesys import Stores, get_typestore
         except ImportError as exc:
-            raise _missing(exc.name or "rosbags") from exc
+            raise _missing((exc.name or "rosbags").split(".")[0]) from exc
         self.settings = settings
         self.published = 0
         self.errors = 0
