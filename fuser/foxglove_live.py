@@ -31,7 +31,7 @@ from fuser.codec import Estimate, dumps, encode_sample, sample_channel
 from fuser.frames import BODY_FRAME, TRUTH_OFFSET_NED_M, WORLD_FRAME, body_transforms, orientation_covariance_ned
 from fuser.record import CHANNELS, INPUT_TOPICS, TRUTH_FRAME
 
-__all__ = ["DEFAULT_PORT", "FoxgloveLive", "REFERENCE_FRAME", "UNCERTAINTY"]
+__all__ = ["DEFAULT_PORT", "REFERENCE_FRAME", "UNCERTAINTY", "FoxgloveLive"]
 
 log = logging.getLogger(__name__)
 

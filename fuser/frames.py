@@ -48,8 +48,8 @@ __all__ = [
     "body_transforms",
     "enu_flu_from_ned_frd",
     "flu_from_frd",
-    "orientation_covariance_ned",
     "orientation_covariance_enu",
+    "orientation_covariance_ned",
 ]
 
 _H = math.sqrt(0.5)

@@ -14,7 +14,8 @@ import dataclasses
 import sys
 from contextlib import ExitStack
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 from fuser.config import FuserConfig
 

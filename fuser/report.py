@@ -30,7 +30,6 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from core import quaternion as quat
 from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample
 from fuser.codec import Estimate

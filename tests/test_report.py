@@ -62,7 +62,7 @@ def _rms_from_mcap(path: Path, since_s: float = 5.0) -> dict[str, float]:
 
 
 def _summary_rms(text: str) -> dict[str, float]:
-    return {m[1]: float(m[2]) for m in re.finditer(r"^\| (total|tilt|heading|uncertainty) \| ([0-9.]+) \|$", text, re.M)}
+    return {m[1]: float(m[2]) for m in re.finditer(r"^\| (total|tilt|heading|uncertainty) \| ([0-9.]+) \|$", text, re.MULTILINE)}
 
 
 def _check_report(log: Path, out: Path, reference: str) -> str:

@@ -254,7 +254,7 @@ def test_a_ros2_subscriber_receives_imu_and_pose_as_rmw_zenoh_sends_them(router:
 
 
 def test_without_a_router_it_counts_errors_and_connects_once_one_starts(monkeypatch) -> None:
-    import fuser.ros2 as ros2
+    from fuser import ros2
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     monkeypatch.setattr(ros2, "ROUTER_RETRY_S", 0.0)
