@@ -252,6 +252,7 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
         ax.legend(loc="upper left", fontsize=8)
     else:
         ax.text(0.5, 0.5, "no sample rejected, no gap", ha="center", va="center", transform=ax.transAxes)
+    ax.set_xlim(0, max(float(tick_s[-1]), 1.0) if len(tick_s) else 1.0)
     ax.set_xlabel("time [s]")
     ax.set_yscale("symlog", linthresh=1.0)  # a handful of gaps stays visible beside thousands of rest ticks
     ax.set_ylim(bottom=0)
