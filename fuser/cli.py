@@ -23,6 +23,7 @@ from typing import Any, Sequence
 
 from drivers.scenarios import SCENARIOS
 from fuser.config import FuserConfig, load_config
+from fuser.outputs import add_options as add_output_options
 
 __all__ = ["main"]
 
@@ -59,6 +60,7 @@ def _parser() -> argparse.ArgumentParser:
                                    "and print the error against the truth.")
     _common(p)
     _zenoh(p)
+    add_output_options(p)
     p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds of flight (default: 60)")
     p.add_argument("--scenario", choices=("full",) + tuple(SCENARIOS), default="full",
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
@@ -83,6 +85,7 @@ def _parser() -> argparse.ArgumentParser:
                                    "socketcan:can0, slcan:/dev/ttyACM0, virtual:test.")
     _common(p)
     _zenoh(p)
+    add_output_options(p)
     p.add_argument("--mavlink", action="append", default=[], metavar="CONN", help="MAVLink connection (repeatable)")
     p.add_argument("--baud", type=int, default=57600, help="serial baud rate for MAVLink (default: 57600)")
     p.add_argument("--can", action="append", default=[], metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
@@ -166,15 +169,17 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
             recorder = McapRecorder if args.speed <= 0 else RecorderProcess
             rec = recorder(args.record, metadata={"source": "bingham-fuser sim", "scenario": args.scenario, "seed": str(args.seed)})
             stack.callback(rec.close)
-        outputs = _estimate_sinks(pub, rec)
-        pipeline = Pipeline(config, [rec.write_sample] if rec else [], outputs)
+        extra = _extra_outputs(stack, config, args)
+        if extra is None:
+            return 2
+        pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
         stop = _stop_on_signal()
         flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
         seconds = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
         print(f"sim: {args.scenario} flight, {seconds:.0f} s at {'full speed' if args.speed <= 0 else f'{args.speed:g}x'}"
               + (f", publishing on bingham_fuser/{config.vehicle}/attitude" if pub else "")
               + (f", recording {args.record}" if rec else ""), file=sys.stderr)
-        run = run_sim(pipeline, flight, args.transport, args.speed, [rec.write_truth] if rec else [], stop)
+        run = run_sim(pipeline, flight, args.transport, args.speed, ([rec.write_truth] if rec else []) + extra.truth, stop)
     print(f"sim: {run.samples} samples -> {run.estimates} estimates in {run.wall_s:.1f} s")
     if args.record:
         _print_scores(args.record)
@@ -185,6 +190,17 @@ def _estimate_sinks(pub: Any, rec: Any) -> list:
     """Where each estimate goes: zenoh first, so a subscriber never waits for the recorder's
     serialisation (measured: +0.1 ms on the publish latency the other way round), then MCAP."""
     return [s for s in (pub.publish_estimate if pub else None, rec.write_estimate if rec else None) if s]
+
+
+def _extra_outputs(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
+    """--ros2, --foxglove, --mavlink-out (fuser/outputs.py); None after one line on stderr if a package is missing."""
+    from fuser.outputs import open_outputs
+
+    try:
+        return open_outputs(stack, config, args)
+    except ImportError as exc:
+        print(f"bingham-fuser: {exc}", file=sys.stderr)
+        return None
 
 
 def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
@@ -213,9 +229,12 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
         if args.record:
             rec = RecorderProcess(args.record, metadata={"source": "bingham-fuser run"})
             stack.callback(rec.close)
-        outputs = _estimate_sinks(pub, rec)
-        pipeline = Pipeline(config, [rec.write_sample] if rec else [], outputs)
+        extra = _extra_outputs(stack, config, args)
+        if extra is None:
+            return 2
+        pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
         status_sinks = [s for s in (rec.write_status if rec else None, (lambda t, d: pub.publish_status(d)) if pub else None) if s]
+        status_sinks += extra.status
 
         def health() -> dict:
             out: dict[str, Any] = {}
@@ -223,7 +242,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
                 out["recorder"] = {"alive": rec.alive, "dropped": rec.dropped}
             if pub is not None:
                 out["publisher"] = {"errors": pub.errors, "subscribed": pub.has_subscribers}
-            return out
+            return out | extra.health_status()
 
         runner = LiveRunner(pipeline, sources, status_sinks, health)
         _stop_on_signal(runner.stop)

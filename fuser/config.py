@@ -8,6 +8,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fuser.mavlink_out import MavlinkOutSettings
+from fuser.ros2 import Ros2Settings
+
 __all__ = ["FuserConfig", "load_config"]
 
 
@@ -120,6 +123,10 @@ class FuserConfig:
     zenoh_connect: tuple[str, ...] = ()
     record: str | None = None
     """MCAP file to record inputs and estimates to (None: do not record)."""
+    ros2: Ros2Settings = Ros2Settings()
+    """ROS 2 output over rmw_zenoh (``[fuser.ros2]``; ``--ros2``): :mod:`fuser.ros2`."""
+    mavlink_out: MavlinkOutSettings = MavlinkOutSettings()
+    """MAVLink output to ground stations (``[fuser.mavlink_out]``; ``--mavlink-out CONN``): :mod:`fuser.mavlink_out`."""
 
     def replace(self, **changes: Any) -> FuserConfig:
         """A copy with some settings changed (None values are ignored)."""
@@ -143,4 +150,14 @@ def load_config(path: str | Path | None, **overrides: Any) -> FuserConfig:
     for key, value in list(values.items()):
         if isinstance(value, list):
             values[key] = tuple(value)
+        elif isinstance(value, dict) and dataclasses.is_dataclass(known[key].default):
+            values[key] = _group(type(known[key].default), key, value, path)
     return FuserConfig(**values).replace(**overrides)
+
+
+def _group(cls: type, name: str, values: dict[str, Any], path: str | Path | None) -> Any:
+    """A settings group from its TOML table ``[fuser.<name>]``; unknown keys are an error naming them."""
+    unknown = sorted(set(values) - {f.name for f in dataclasses.fields(cls)})
+    if unknown:
+        raise ValueError(f"unknown setting(s) in [fuser.{name}] of {path}: {', '.join(unknown)}")
+    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})

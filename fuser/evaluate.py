@@ -29,6 +29,10 @@ class AttitudeErrors:
     tilt_deg: NDArray[np.float64]
     heading_deg: NDArray[np.float64]
     uncertainty_deg: NDArray[np.float64]
+    q_est: NDArray[np.float64]
+    """The estimates compared (w, x, y, z), one row per time."""
+    q_ref: NDArray[np.float64]
+    """The reference interpolated (slerp) at the same times."""
 
     def rms(self, since_s: float = 0.0) -> dict[str, float]:
         """RMS of each error (degrees) over estimates at least ``since_s`` after the first."""
@@ -67,4 +71,6 @@ def attitude_errors(
         tilt,
         heading,
         np.asarray(uncertainty_deg, dtype=float)[inside],
+        q_est,
+        q_r,
     )

@@ -35,8 +35,10 @@ from mcap.writer import CompressionType, Writer
 from drivers.samples import Quat, Sample
 
 from .codec import Estimate, decode_sample, dumps, encode_sample, sample_channel
+from .frames import BODY_FRAME, TRUTH_OFFSET_NED_M, body_transforms
 
-__all__ = ["CHANNELS", "LogContents", "McapRecorder", "RawMessage", "RecorderProcess", "pose_in_frame", "read_log"]
+__all__ = ["CHANNELS", "LogContents", "McapRecorder", "RawMessage", "RecorderProcess", "frame_transforms", "pose_in_frame",
+           "read_log"]
 
 log = logging.getLogger(__name__)
 
@@ -82,6 +84,31 @@ POSE_IN_FRAME = _obj(
         ),
     },
 )
+
+_TIME = {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}}
+FRAME_TRANSFORMS = _obj(
+    "foxglove.FrameTransforms",
+    "An array of FrameTransform messages",
+    {
+        "transforms": {
+            "type": "array",
+            "description": "Array of transforms",
+            "items": _obj(
+                "foxglove.FrameTransform",
+                "A transform between two reference frames in 3D space",
+                {
+                    "timestamp": _obj("time", "Timestamp of transform", _TIME),
+                    "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
+                    "child_frame_id": {"type": "string", "description": "Name of the child frame"},
+                    "translation": _vec("xyz", "foxglove.Vector3"),
+                    "rotation": _vec("xyzw", "foxglove.Quaternion"),
+                },
+            ),
+        }
+    },
+)
+"""Foxglove's ``foxglove.FrameTransforms`` (its published JSON schema's fields): ``enu -> ned -> body`` per estimate."""
+TRUTH_FRAME = "truth_body"
 
 _SOURCE = _obj(
     "source",
@@ -146,18 +173,30 @@ CHANNELS: dict[str, dict[str, Any]] = {
     "/pose": POSE_IN_FRAME,
     "/truth/pose": POSE_IN_FRAME,
     "/status": {"title": "bingham_fuser.Status", "description": "health and counters", "type": "object"},
+    "/tf": FRAME_TRANSFORMS,
 }
 
 
-def pose_in_frame(t_ns: int, q_wxyz: Quat) -> dict[str, Any]:
-    """A ``foxglove.PoseInFrame`` dict (orientation in x, y, z, w order) at the origin of NED."""
+def pose_in_frame(t_ns: int, q_wxyz: Quat, position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> dict[str, Any]:
+    """A ``foxglove.PoseInFrame`` dict (orientation in x, y, z, w order) in NED, at the origin by default."""
     w, x, y, z = q_wxyz
     sec, nsec = divmod(t_ns, 1_000_000_000)
     return {
         "timestamp": {"sec": sec, "nsec": nsec},
         "frame_id": FRAME_ID,
-        "pose": {"position": {"x": 0.0, "y": 0.0, "z": 0.0}, "orientation": {"x": x, "y": y, "z": z, "w": w}},
+        "pose": {"position": dict(zip("xyz", position_ned_m)), "orientation": {"x": x, "y": y, "z": z, "w": w}},
     }
+
+
+def frame_transforms(t_ns: int, child_frame: str, q_wxyz: Quat, translation_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+                     ) -> dict[str, Any]:
+    """A ``foxglove.FrameTransforms`` dict placing ``child_frame`` in the upright ``enu`` frame (``fuser.frames``)."""
+    sec, nsec = divmod(t_ns, 1_000_000_000)
+    return {"transforms": [
+        {"timestamp": {"sec": sec, "nsec": nsec}, "parent_frame_id": parent, "child_frame_id": child,
+         "translation": dict(zip("xyz", t)), "rotation": dict(zip("xyzw", r))}
+        for parent, child, t, r in body_transforms(child_frame, q_wxyz, translation_ned_m)
+    ]}
 
 
 class _ChunkOutput:
@@ -226,13 +265,15 @@ class McapRecorder:
         self.write_message(sample_channel(sample), receive_ns, sample.t_ns, dumps(encode_sample(sample, receive_ns)))
 
     def write_estimate(self, est: Estimate) -> None:
-        """An estimate on ``/estimate`` (full) and ``/pose`` (Foxglove), at its tick time."""
+        """An estimate on ``/estimate`` (full), ``/pose`` and ``/tf`` (Foxglove), at its tick time."""
         self.write_message("/estimate", est.t_ns, est.t_ns, est.to_json())
         self.write_message("/pose", est.t_ns, est.t_ns, dumps(pose_in_frame(est.t_ns, est.q_wxyz)))
+        self.write_message("/tf", est.t_ns, est.t_ns, dumps(frame_transforms(est.t_ns, BODY_FRAME, est.q_wxyz)))
 
     def write_truth(self, t_ns: int, q_wxyz: Quat) -> None:
-        """The true attitude (simulator, imported logs) on ``/truth/pose``."""
-        self.write_message("/truth/pose", t_ns, t_ns, dumps(pose_in_frame(t_ns, q_wxyz)))
+        """The true attitude (simulator, imported logs) on ``/truth/pose``, and its own body frame on ``/tf``."""
+        self.write_message("/truth/pose", t_ns, t_ns, dumps(pose_in_frame(t_ns, q_wxyz, TRUTH_OFFSET_NED_M)))
+        self.write_message("/tf", t_ns, t_ns, dumps(frame_transforms(t_ns, TRUTH_FRAME, q_wxyz, TRUTH_OFFSET_NED_M)))
 
     def write_status(self, t_ns: int, status: dict[str, Any]) -> None:
         """A health/counters dict on ``/status``."""

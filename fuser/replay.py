@@ -79,9 +79,10 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     start = time.monotonic()
     samples = 0
     first_ns: int | None = None
-    with McapRecorder(out, metadata={"source_log": Path(log).name}) as recorder:
+    contents = None if str(log).endswith(".tlog") else read_log(log)
+    provenance = {} if contents is None else contents.metadata.get("bingham_fuser", {})  # reference, source, attribution
+    with McapRecorder(out, metadata={**provenance, "source_log": Path(log).name}) as recorder:
         pipeline = Pipeline(config, [], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
-        contents = None if str(log).endswith(".tlog") else read_log(log)
         if contents is None:
             pipeline.inputs.append(recorder.write_sample)
         for sample, receive_ns in (tlog_inputs(log) if contents is None else _copied_inputs(contents, pipeline, recorder)):

@@ -1,35 +1,109 @@
-"""Scores and plots of a fused log: estimates against the truth or the autopilot's attitude.
+"""Scores, plots and a summary of a fused log: estimates against the reference attitude, named as what it is.
 
-Estimates carry ``sensor_t_ns``, the tick time on the vehicle's clock, so
-they are compared with the truth (simulator, imported benchmark) or the
-autopilot's own attitude at exactly that time.
+Estimates carry ``sensor_t_ns``, the tick time on the vehicle's clock, so they are compared with
+the reference (``/truth/pose``: a simulator's truth, an imported benchmark's motion capture, a PX4
+log's EKF2 estimate; else the autopilot's own attitude inputs) at exactly that time.
+
+The reference is named from the MCAP metadata ``reference`` key where the log has one (written by
+``bingham-fuser import``, carried over by replay), else inferred from the log's ``source``:
+
+| where | named |
+| --- | --- |
+| ``reference`` starts with "EKF2" / "EKF3" | ``EKF2`` / ``EKF3`` (another estimator, not ground truth) |
+| ``reference`` mentions motion capture, or the source is BROAD | ``motion capture`` |
+| the source is ``bingham-fuser sim`` | ``simulator truth`` |
+| the source is a PX4 ULog / an ArduPilot DataFlash log | ``EKF2`` / ``EKF3`` |
+| no ``/truth/pose``: the autopilot's ATTITUDE inputs | ``autopilot attitude`` |
+
+:func:`write_report` writes ``attitude.png`` (roll, pitch, yaw against the reference, the
+estimate's 2-sigma band), ``error.png`` (total, tilt and heading error with their RMS on the
+plot; the actual error against the reported uncertainty), ``counters.png`` (every counter of the
+loop and the model over time) and ``summary.md`` beside them.
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
+from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample
+from fuser.codec import Estimate
 from fuser.evaluate import AttitudeErrors, attitude_errors
-from fuser.record import read_log
+from fuser.frames import orientation_covariance_ned
+from fuser.record import LogContents, read_log
 
-__all__ = ["errors_of_log", "score_log", "write_report"]
+__all__ = ["Reference", "errors_of_log", "reference_of", "score_log", "write_report"]
+
+CONVERGENCE_S = 5.0
+"""Scores leave out the first seconds, while the filter converges from a uniform start."""
+BAND_SIGMA = 2.0
+"""Width of the uncertainty band on the attitude plot, in sigmas (about 95 %)."""
+_ALWAYS = ("samples", "ticks")
+"""Counters every tick increments: in the summary, not on the counter plot."""
 
 
-def errors_of_log(path: str | Path) -> tuple[str, AttitudeErrors] | None:
-    """(reference name, errors) for a log's estimates, or None if it has no reference or no estimates."""
-    contents = read_log(path)
+@dataclass(frozen=True)
+class Reference:
+    """What the estimates are compared with."""
+
+    name: str
+    """Short name for plots: ``simulator truth``, ``motion capture``, ``EKF2``, ``EKF3``, ``autopilot attitude``."""
+    detail: str
+    """Where the name comes from (the metadata's words, or the inference)."""
+    ground_truth: bool
+    """True for a simulator's truth or motion capture; False for another estimator."""
+
+
+def _from_words(text: str) -> tuple[str, bool] | None:
+    t = text.lower()
+    for ekf in ("ekf2", "ekf3"):
+        if t.startswith(ekf) or f" {ekf}" in t:
+            return ekf.upper(), False
+    if "motion capture" in t or "broad" in t or "mocap" in t:
+        return "motion capture", True
+    if "sim" in t.split() or "simulat" in t or "bingham-fuser sim" in t:
+        return "simulator truth", True
+    if "px4" in t or "ulog" in t:
+        return "EKF2", False
+    if "ardupilot" in t or "dataflash" in t:
+        return "EKF3", False
+    return None
+
+
+def reference_of(contents: LogContents) -> Reference:
+    """Name the reference of a log (see the module docstring)."""
+    meta = contents.metadata.get("bingham_fuser", {})
+    if not any(m.topic == "/truth/pose" for m in contents.raw):
+        return Reference("autopilot attitude", "the autopilot's own attitude messages (no /truth/pose)", False)
+    if "reference" in meta:
+        named = _from_words(meta["reference"])
+        if named is not None:
+            return Reference(named[0], f"metadata reference: {meta['reference']}", named[1])
+    source = meta.get("source", "")
+    named = _from_words(source)
+    if named is not None:
+        return Reference(named[0], f"inferred from the log's source: {source}", named[1])
+    return Reference("truth", "/truth/pose of unknown origin", True)
+
+
+def errors_of_log(path: str | Path, contents: LogContents | None = None) -> tuple[str, AttitudeErrors] | None:
+    """(``truth`` or ``autopilot attitude``: where the reference came from, errors) for a log's
+    estimates, or None if it has no reference or no estimates."""
+    contents = read_log(path) if contents is None else contents
     estimates = [e for e in contents.estimates() if e.sensor_t_ns is not None]
     if not estimates:
         return None
     truth = contents.truth()
     if truth:
-        name, ref = "truth", truth
+        kind, ref = "truth", truth
     else:
         ref = [(s.t_ns, s.q_wxyz) for s, _ in contents.inputs() if isinstance(s, AttitudeSample)]
-        name = "autopilot attitude"
+        kind = "autopilot attitude"
         if len(ref) < 2:
             return None
     ref_t = np.array([t for t, _ in ref], dtype=np.int64)
@@ -37,53 +111,188 @@ def errors_of_log(path: str | Path) -> tuple[str, AttitudeErrors] | None:
     t = np.array([e.sensor_t_ns for e in estimates], dtype=np.int64)
     q = np.array([e.q_wxyz for e in estimates], dtype=float)
     unc = np.array([e.uncertainty_deg for e in estimates], dtype=float)
-    return name, attitude_errors(t, q, unc, ref_t, ref_q)
+    return kind, attitude_errors(t, q, unc, ref_t, ref_q)
 
 
-def score_log(path: str | Path, since_s: float = 5.0) -> list[str]:
-    """Lines of a summary table: RMS errors after the first ``since_s`` seconds (convergence)."""
-    result = errors_of_log(path)
-    if result is None:
-        return [f"{path}: no reference attitude to score against"]
-    name, err = result
-    if (err.t_ns[-1] - err.t_ns[0]) * 1e-9 <= since_s:
-        since_s = 0.0  # too short to leave out the convergence: score all of it
+def _window(err: AttitudeErrors, since_s: float) -> float:
+    """``since_s``, or 0 when the flight is too short to leave out the convergence."""
+    return since_s if (err.t_ns[-1] - err.t_ns[0]) * 1e-9 > since_s else 0.0
+
+
+def _score_lines(ref: Reference, err: AttitudeErrors, since_s: float) -> list[str]:
     rms = err.rms(since_s)
     window = f"after the first {since_s:g} s" if since_s > 0 else "over the whole flight, convergence included"
     return [
-        f"error against {name} {window} (RMS, degrees):",
+        f"error against {ref.name} {window} (RMS, degrees):",
         f"  total {rms['total']:.2f}   tilt {rms['tilt']:.2f}   heading {rms['heading']:.2f}   "
         f"reported uncertainty {rms['uncertainty']:.2f}",
     ]
 
 
-def write_report(path: str | Path, out_dir: Path) -> list[str]:
-    """Write ``attitude.png`` and ``error.png`` into ``out_dir``; return the summary lines."""
+def score_log(path: str | Path, since_s: float = CONVERGENCE_S) -> list[str]:
+    """Lines of a summary table: RMS errors after the first ``since_s`` seconds (convergence)."""
+    contents = read_log(path)
+    result = errors_of_log(path, contents)
+    if result is None:
+        return [f"{path}: no reference attitude to score against"]
+    err = result[1]
+    return _score_lines(reference_of(contents), err, _window(err, since_s))
+
+
+def _euler_deg(q: NDArray) -> NDArray:
+    """Roll, pitch, yaw (ZYX) in degrees, one row per quaternion."""
+    return np.degrees(np.array([euler_from_quaternion(tuple(row)) for row in q]))
+
+
+def _euler_sigma_deg(estimates: list[Estimate], euler_deg: NDArray) -> NDArray:
+    """One-sigma roll, pitch, yaw of each estimate: the Bingham's world-frame covariance mapped to
+    ZYX Euler angles. A small world-frame rotation ``delta`` changes them by ``E^-1 delta`` with
+    ``E = [Rz Ry e_x, Rz e_y, e_z]`` (columns for roll, pitch, yaw); near pitch +-90 deg, where
+    roll and yaw are undefined, their sigmas are left out (NaN)."""
+    out = np.full((len(estimates), 3), np.nan)
+    for i, (est, (_, pitch, yaw)) in enumerate(zip(estimates, np.radians(euler_deg), strict=True)):
+        if abs(math.cos(pitch)) < 1e-3:
+            continue
+        cy, sy, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
+        E = np.array([[cy * cp, -sy, 0.0], [sy * cp, cy, 0.0], [-sp, 0.0, 1.0]])
+        Einv = np.linalg.inv(E)
+        cov = Einv @ orientation_covariance_ned(est.M, est.Z, est.q_wxyz) @ Einv.T
+        out[i] = np.degrees(np.sqrt(np.maximum(np.diag(cov), 0.0)))
+    return out
+
+
+def _matched_estimates(contents: LogContents, err: AttitudeErrors) -> list[Estimate]:
+    """The estimates ``err`` compares, in its order (those inside the reference's time span)."""
+    by_time = {e.sensor_t_ns: e for e in contents.estimates() if e.sensor_t_ns is not None}
+    return [by_time[int(t)] for t in err.t_ns]
+
+
+def _counters(contents: LogContents) -> tuple[NDArray, dict[str, NDArray], dict[str, int]]:
+    """Tick times (s from the first), each rejection counter over time, and the final counts."""
+    estimates = contents.estimates()
+    t = np.array([e.t_ns for e in estimates], dtype=np.int64)
+    names = sorted({k for e in estimates for k in e.counters} - set(_ALWAYS))
+    series = {n: np.array([e.counters.get(n, 0) for e in estimates]) for n in names}
+    final = dict(sorted(estimates[-1].counters.items())) if estimates else {}
+    return (t - t[0]) * 1e-9 if len(t) else t * 1.0, series, final
+
+
+def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S) -> list[str]:
+    """Write ``attitude.png``, ``error.png``, ``counters.png`` and ``summary.md`` into ``out_dir``;
+    return the summary lines printed by the CLI."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    result = errors_of_log(path)
-    lines = score_log(path)
+    contents = read_log(path)
+    result = errors_of_log(path, contents)
     if result is None:
-        return lines
-    name, err = result
+        return [f"{path}: no reference attitude to score against"]
+    err = result[1]
+    ref = reference_of(contents)
+    since_s = _window(err, since_s)
+    rms = err.rms(since_s)
     out_dir.mkdir(parents=True, exist_ok=True)
+    title = f"{Path(path).name}: bingham-fuser against {ref.name}"
     t = (err.t_ns - err.t_ns[0]) * 1e-9
-    fig, ax = plt.subplots(2, 1, figsize=(10, 6), sharex=True)
-    ax[0].plot(t, err.total_deg, lw=0.8, label="total")
-    ax[0].plot(t, err.tilt_deg, lw=0.8, label="tilt")
-    ax[0].plot(t, err.heading_deg, lw=0.8, label="heading")
-    ax[0].set_ylabel(f"error vs {name} [deg]")
-    ax[0].legend(loc="upper right")
-    ax[1].plot(t, err.total_deg, lw=0.8, label="actual error")
-    ax[1].fill_between(t, 0, err.uncertainty_deg, alpha=0.3, label="reported RMS uncertainty")
+
+    # attitude: roll, pitch, yaw against the reference, with the estimate's 2-sigma band
+    est_euler = _euler_deg(err.q_est)
+    ref_euler = _euler_deg(err.q_ref)
+    est_euler[:, 2] = np.degrees(np.unwrap(np.radians(est_euler[:, 2])))
+    ref_euler[:, 2] = est_euler[:, 2] + (ref_euler[:, 2] - est_euler[:, 2] + 180.0) % 360.0 - 180.0
+    sigma = _euler_sigma_deg(_matched_estimates(contents, err), _euler_deg(err.q_est))
+    fig, ax = plt.subplots(3, 1, figsize=(11, 8), sharex=True)
+    for i, label in enumerate(("roll", "pitch", "yaw")):
+        ax[i].fill_between(t, est_euler[:, i] - BAND_SIGMA * sigma[:, i], est_euler[:, i] + BAND_SIGMA * sigma[:, i],
+                           color="tab:blue", alpha=0.2, lw=0, label=f"estimate ± {BAND_SIGMA:g} sigma")
+        ax[i].plot(t, est_euler[:, i], color="tab:blue", lw=1.0, label="bingham-fuser")
+        ax[i].plot(t, ref_euler[:, i], color="tab:orange", lw=1.0, ls="--", label=ref.name)
+        ax[i].set_ylabel(f"{label} [deg]")
+        ax[i].grid(alpha=0.3)
+    ax[0].legend(loc="upper right", fontsize=8, ncol=3)
+    ax[-1].set_xlabel("time [s]")
+    fig.suptitle(f"{title}: attitude (ZYX Euler)")
+    fig.tight_layout()
+    fig.savefig(out_dir / "attitude.png", dpi=100)
+    plt.close(fig)
+
+    # error: per component with its RMS, and the actual error against the reported uncertainty
+    fig, ax = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
+    for values, label in ((err.total_deg, "total"), (err.tilt_deg, "tilt"), (err.heading_deg, "heading")):
+        ax[0].plot(t, values, lw=0.8, label=f"{label}: RMS {rms[label]:.2f}°")
+    if since_s > 0:
+        for a in ax:
+            a.axvspan(0, since_s, color="0.85", lw=0)
+    window = f"RMS after the first {since_s:g} s (grey: convergence, left out)" if since_s > 0 else "RMS over the whole flight"
+    ax[0].set_title(window, fontsize=9)
+    ax[0].set_ylabel(f"error vs {ref.name} [deg]")
+    ax[0].legend(loc="upper right", fontsize=8)
+    ax[1].fill_between(t, 0, err.uncertainty_deg, color="tab:green", alpha=0.3, lw=0,
+                       label=f"reported RMS uncertainty (RMS {rms['uncertainty']:.2f}°)")
+    ax[1].plot(t, err.total_deg, lw=0.8, color="tab:blue", label=f"actual total error (RMS {rms['total']:.2f}°)")
     ax[1].set_ylabel("deg")
     ax[1].set_xlabel("time [s]")
-    ax[1].legend(loc="upper right")
-    fig.suptitle(Path(path).name)
+    ax[1].legend(loc="upper right", fontsize=8)
+    for a in ax:
+        a.grid(alpha=0.3)
+        a.set_ylim(bottom=0)
+    fig.suptitle(f"{title}: error")
     fig.tight_layout()
     fig.savefig(out_dir / "error.png", dpi=100)
     plt.close(fig)
-    return lines + [f"plots: {out_dir / 'error.png'}"]
+
+    # counters: every rejection and gap counter over time (cumulative)
+    tick_s, series, final = _counters(contents)
+    fig, ax = plt.subplots(figsize=(11, 4))
+    for name, values in series.items():
+        ax.step(tick_s, values, where="post", lw=1.0, label=f"{name}: {int(values[-1])}")
+    if series:
+        ax.legend(loc="upper left", fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no sample rejected, no gap", ha="center", va="center", transform=ax.transAxes)
+    ax.set_xlim(0, max(float(tick_s[-1]), 1.0) if len(tick_s) else 1.0)
+    ax.set_xlabel("time [s]")
+    ax.set_yscale("symlog", linthresh=1.0)  # a handful of gaps stays visible beside thousands of rest ticks
+    ax.set_ylim(bottom=0)
+    ax.set_ylabel("count (cumulative, log scale above 1)")
+    ax.set_title(f"{title}: counters ({final.get('ticks', 0)} ticks, {final.get('samples', 0)} samples)", fontsize=10)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(out_dir / "counters.png", dpi=100)
+    plt.close(fig)
+
+    lines = _score_lines(ref, err, since_s)
+    (out_dir / "summary.md").write_text(_summary(Path(path).name, ref, err, rms, since_s, final))
+    return lines + [f"report: {out_dir / 'summary.md'}, attitude.png, error.png, counters.png"]
+
+
+def _summary(log_name: str, ref: Reference, err: AttitudeErrors, rms: dict[str, float], since_s: float,
+             counters: dict[str, int]) -> str:
+    window = f"after the first {since_s:g} s (convergence left out)" if since_s > 0 else "over the whole flight (too short to leave out the convergence)"
+    kind = "ground truth" if ref.ground_truth else "another estimator, not ground truth: the figures are agreement, not accuracy"
+    duration = (err.t_ns[-1] - err.t_ns[0]) * 1e-9
+    rows = "\n".join(f"| {name} | {rms[name]:.2f} |" for name in ("total", "tilt", "heading", "uncertainty"))
+    counts = "\n".join(f"| {k} | {v} |" for k, v in counters.items())
+    return f"""# bingham-fuser report: {log_name}
+
+Reference: **{ref.name}** ({kind}); {ref.detail}.
+
+{len(err.t_ns)} estimates over {duration:.1f} s compared with the reference at the same instant (slerp);
+RMS {window}, degrees ("uncertainty" is the RMS of the reported uncertainty):
+
+| error | RMS [deg] |
+| --- | --- |
+{rows}
+
+Counters at the end of the log:
+
+| counter | count |
+| --- | --- |
+{counts}
+
+Plots: [attitude.png](attitude.png) (roll, pitch, yaw against {ref.name}, the estimate's {BAND_SIGMA:g}-sigma band),
+[error.png](error.png) (errors with their RMS; actual error against the reported uncertainty),
+[counters.png](counters.png) (rejections and gaps over time).
+"""

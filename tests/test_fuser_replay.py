@@ -120,7 +120,7 @@ def test_cli_replay_and_report(tmp_path, capsys):
     assert main(["replay", str(SIM_LOGS[0]), "-o", str(out)]) == 0
     assert main(["report", str(out), "-o", str(tmp_path / "report")]) == 0
     text = capsys.readouterr().out
-    assert "error against truth" in text
+    assert "error against simulator truth" in text
     png = tmp_path / "report" / "error.png"
     assert png.exists() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 

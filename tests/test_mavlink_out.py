@@ -1,0 +1,99 @@
+"""MAVLink out: a pymavlink ground station on loopback receives ATTITUDE_QUATERNION, ATTITUDE and
+HEARTBEAT from the fuser's own component, at the set rates, with the values fed in."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import socket
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+os.environ.setdefault("MAVLINK20", "1")
+from pymavlink import mavutil  # noqa: E402
+
+from drivers.samples import ImuSample, SourceId  # noqa: E402
+from fuser.mavlink_out import MavlinkOut, MavlinkOutSettings  # noqa: E402
+from fuser.record import read_log  # noqa: E402
+
+LOGS = Path(__file__).resolve().parent.parent / "logs"
+VEHICLE = SourceId("mavlink", 42, 1, 0)
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _feed(seconds: float) -> list[tuple[str, object]]:
+    """A real fuser run (logs/sim_hover.mcap, 100 Hz estimates, from 50 ms of IMU before the first), its IMU
+    re-addressed to system 42."""
+    contents = read_log(LOGS / "sim_hover.mcap")
+    events = [(r, 0, dataclasses.replace(s, source=VEHICLE)) for s, r in contents.inputs() if isinstance(s, ImuSample)]
+    events += [(e.t_ns, 1, e) for e in contents.estimates()]
+    events.sort(key=lambda x: (x[0], x[1]))
+    t0 = next(t for t, kind, _ in events if kind == 1)
+    return [("est" if kind else "imu", obj) for t, kind, obj in events if t0 - 50_000_000 <= t < t0 + seconds * 1e9]
+
+
+def test_a_ground_station_receives_the_fused_attitude_from_its_own_component() -> None:
+    port = free_udp_port()
+    gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", dialect="common")  # receiver first: udpout drops otherwise
+    out = MavlinkOut(MavlinkOutSettings(connection=f"udpout:127.0.0.1:{port}", rate_hz=10.0))
+    try:
+        sent, gyro = [], (0.0, 0.0, 0.0)
+        for kind, obj in _feed(3.0):
+            if kind == "imu":
+                out.write_sample(obj, 0)
+                gyro = obj.gyro_rad_s
+            else:
+                before = out.sent
+                out.publish_estimate(obj)
+                if out.sent > before:
+                    sent.append((obj, gyro, out.sent - before))
+        assert out.errors == 0
+        received: list = []
+        deadline = time.monotonic() + 5.0
+        while len(received) < out.sent and time.monotonic() < deadline:
+            m = gcs.recv_match(blocking=True, timeout=0.2)
+            if m is not None and m.get_type() != "BAD_DATA":
+                received.append(m)
+    finally:
+        out.close()
+        gcs.close()
+    by_type: dict[str, list] = {}
+    for m in received:
+        by_type.setdefault(m.get_type(), []).append(m)
+        assert (m.get_srcSystem(), m.get_srcComponent()) == (42, 197)  # the vehicle's system, a component of its own
+        assert m.get_msgbuf()[0] == 0xFD  # MAVLink 2 frames (magic byte)
+    # 3 s of estimates at 100 Hz: 30 attitudes at 10 Hz, one heartbeat per second
+    assert len(by_type["ATTITUDE_QUATERNION"]) == len(by_type["ATTITUDE"]) == 30
+    assert len(by_type["HEARTBEAT"]) == 3
+    hb = by_type["HEARTBEAT"][0]
+    assert (hb.type, hb.autopilot, hb.system_status) == (18, 8, 4)  # ONBOARD_CONTROLLER, AUTOPILOT_INVALID, ACTIVE
+    attitude_ticks = [(e, g) for e, g, n in sent if n >= 2]
+    assert [e.t_ns for e, _ in attitude_ticks] == [attitude_ticks[0][0].t_ns + k * 100_000_000 for k in range(30)]
+    for (est, g), aq, att in zip(attitude_ticks, by_type["ATTITUDE_QUATERNION"], by_type["ATTITUDE"], strict=True):
+        np.testing.assert_allclose([aq.q1, aq.q2, aq.q3, aq.q4], est.q_wxyz, atol=1e-7)  # float32 on the wire
+        np.testing.assert_allclose([aq.rollspeed, aq.pitchspeed, aq.yawspeed], g, rtol=1e-6, atol=1e-9)
+        assert aq.time_boot_ms == att.time_boot_ms == est.sensor_t_ns // 1_000_000
+        w, x, y, z = est.q_wxyz
+        yaw, pitch, roll = Rotation.from_quat([x, y, z, w]).as_euler("ZYX")  # independent of the fuser's euler_deg
+        np.testing.assert_allclose([att.roll, att.pitch], [roll, pitch], atol=1e-6)
+        assert abs((att.yaw - yaw + np.pi) % (2 * np.pi) - np.pi) < 1e-6
+
+
+def test_settings_are_validated_and_a_bad_connection_never_raises() -> None:
+    for kwargs, key in [({"rate_hz": 0}, "mavlink_out.rate_hz"), ({"system_id": 0}, "mavlink_out.system_id"),
+                        ({"component_id": 1}, "mavlink_out.component_id"), ({"component_id": 300}, "mavlink_out.component_id")]:
+        with pytest.raises(ValueError, match=key):
+            MavlinkOutSettings(**kwargs)
+    out = MavlinkOut(MavlinkOutSettings(connection="/dev/no-such-tty"))
+    est = read_log(LOGS / "sim_hover.mcap").estimates()[0]
+    out.publish_estimate(est)
+    assert out.errors >= 1 and out.error is not None and out.sent == 0
