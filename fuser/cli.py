@@ -149,10 +149,16 @@ def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
 
 def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
     from drivers.scenarios import flight as make_flight
+    from drivers.scenarios import require as require_scenario
     from fuser.pipeline import Pipeline
     from fuser.record import McapRecorder, RecorderProcess
     from fuser.simulate import run_sim
 
+    try:
+        require_scenario(args.scenario)
+    except ImportError as exc:  # an optional dependency of the scenario (jsbsim for fixedwing)
+        print(f"sim: {exc}", file=sys.stderr)
+        return 2
     if args.send or args.send_can:
         from fuser.sender import run_sender
 
