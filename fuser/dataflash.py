@@ -37,7 +37,10 @@ LogStructure.h give them; DFReader applies the format characters' scale
   ``/truth/pose`` as the reference (metadata ``reference`` says whose, and
   that it is NOT ground truth) and is sent as ArduPilot's ATTITUDE stream.
 * Corrupt bytes between records (SD-card logs have them) are skipped by
-  DFReader and counted.
+  DFReader and counted; a record whose layout lacks a field the import
+  needs (the earliest GPS layout has no boot time ``T``) is counted as
+  ``unreadable_<name>``; a GPS layout without ``VZ`` gives no vertical
+  velocity.
 
 The result is a :class:`fuser.importers.SensorData`, written to MCAP by
 :func:`fuser.importers.write_mcap` exactly as a PX4 log is: every sample
@@ -149,7 +152,10 @@ def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
             while (m := log.recv_msg()) is not None:
                 name = m.get_type()
                 if name in _TYPES:
-                    _add_record(rows, skipped, name, m.to_dict())
+                    try:
+                        _add_record(rows, skipped, name, m.to_dict())
+                    except (KeyError, TypeError, ValueError):  # a layout this importer does not know
+                        skipped[f"unreadable_{name}"] += 1
             params = dict(log.params)
         finally:
             log.close()
@@ -163,8 +169,9 @@ def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
 
 
 def _add_record(rows: dict[str, list], skipped: Counter, name: str, d: dict) -> None:
-    """File one IMU, MAG, GPS, GPA or ATT record under its stream (imu0, mag1, gps, gpa, att)."""
-    t = _time_ns(d, name)
+    """File one IMU, MAG, GPS, GPA or ATT record under its stream (imu0, mag1, gps, gpa, att).
+    A field missing from the record's layout raises KeyError (counted by the caller)."""
+    t = _time_ns(d, name)  # the earliest GPS layouts have no boot time (no T): unreadable, counted
     if name.startswith("IMU"):
         if not _healthy(d, "GH", "AH", "GyHlt", "AcHlt"):
             skipped["imu_unhealthy"] += 1
@@ -180,7 +187,7 @@ def _add_record(rows: dict[str, list], skipped: Counter, name: str, d: dict) -> 
             skipped["gps_second_receiver"] += 1
             return
         week, week_ms = (d["GWk"], d["GMS"]) if "GWk" in d else (d["Week"], d["TimeMS"])
-        rows["gps"].append((t, int(d["Status"]), d["Lat"], d["Lng"], d["Alt"], d["Spd"], d["GCrs"], d["VZ"], week, week_ms))
+        rows["gps"].append((t, int(d["Status"]), d["Lat"], d["Lng"], d["Alt"], d["Spd"], d["GCrs"], d.get("VZ"), week, week_ms))
     elif name.startswith("GPA"):
         if _instance(d, name, "GPA") == 0:
             rows["gpa"].append((t, d["SAcc"]))
@@ -194,10 +201,10 @@ def _gnss(gps: list, gpa: list) -> tuple[list[GnssSample], float | None]:
     fixes, first_unix = [], None
     for t, status, lat, lng, alt, spd, crs, vz, week, week_ms in gps:
         course = math.radians(crs)
-        vel = (spd * math.cos(course), spd * math.sin(course), vz) if status >= 2 else None
+        vel = (spd * math.cos(course), spd * math.sin(course), vz or 0.0) if status >= 2 else None
         has_position = status >= 2 and not (lat == 0 and lng == 0)
         acc = speed_accuracy.get(t)
-        fixes.append(GnssSample(t, status, vel, status >= 3, acc if acc else None,  # type: ignore[arg-type]
+        fixes.append(GnssSample(t, status, vel, status >= 3 and vz is not None, acc if acc else None,  # type: ignore[arg-type]
                                 lat if has_position else None, lng if has_position else None,
                                 alt if has_position else None, False, MAVLINK_SOURCE))
         if first_unix is None and status >= 3 and week > 0:
@@ -211,7 +218,7 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
     path = Path(path)
     rows, params, skipped = _read_records(path)
     instances = sorted(int(k[3:]) for k in rows if k.startswith("imu"))
-    if not instances:
+    if not instances:  # (an instance the cut leaves empty is dropped below)
         raise ValueError(f"{path} has no IMU records: not an ArduPilot DataFlash log, or one without IMU logging")
     data = {k: np.array(v, dtype=float) for k, v in rows.items() if k.startswith(("imu", "mag"))}
     t0 = int(data[f"imu{instances[0]}"][0, 0]) + round(start_s * 1e9)
@@ -221,11 +228,13 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
         return t >= t0 and (t1 is None or t < t1)
 
     def rows_inside(a: np.ndarray) -> np.ndarray:
-        return a[[inside(int(t)) for t in a[:, 0]]] if len(a) else a
+        return a[(a[:, 0] >= t0) & (a[:, 0] < t1 if t1 is not None else True)]
 
     imus = []
     for i in instances:
         raw = rows_inside(data[f"imu{i}"])
+        if not len(raw):
+            continue
         t_ns = raw[:, 0].astype(np.int64)
         mag = None
         if f"mag{i}" in data:
@@ -233,6 +242,8 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
             if late:
                 skipped["mag_after_last_imu"] += late
         imus.append(ImuStream(i, t_ns, raw[:, 1:4], raw[:, 4:7], mag))
+    if not imus:
+        raise ValueError(f"{path}: no IMU records from {start_s:g} s" + (f" for {duration_s:g} s" if duration_s else ""))
     for key in data:
         if key.startswith("mag") and int(key[3:]) not in instances:
             skipped["mag_without_imu"] += len(data[key])

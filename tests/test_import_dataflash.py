@@ -337,3 +337,23 @@ def test_a_file_that_is_not_a_dataflash_log_is_one_clear_error(tmp_path):
     run = subprocess.run([sys.executable, "-m", "fuser.cli", "import", str(bogus), "-o", str(tmp_path / "o.mcap")],
                          capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert run.returncode == 2 and "no IMU records" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_records_in_a_layout_the_import_cannot_place_are_counted(tmp_path):
+    """ArduPlane's 2013 GPS layout has neither VZ nor the boot time T: such fixes cannot go on the IMU's clock."""
+    w = DataFlashWriter()
+    w.declare(130, "GPS", "BIHBcLLeeEe", "Status,TimeMS,Week,NSats,HDop,Lat,Lng,RelAlt,Alt,Spd,GCrs")
+    w.declare(131, "IMU", "Iffffff", "TimeMS,GyrX,GyrY,GyrZ,AccX,AccY,AccZ")
+    for k in range(100):
+        w.write("IMU", TimeMS=1000 + 20 * k, GyrX=0.0, GyrY=0.0, GyrZ=0.01, AccX=0.0, AccY=0.0, AccZ=-9.81)
+        if k % 10 == 0:
+            w.write("GPS", Status=3, TimeMS=130040000 + 20 * k, Week=1764, NSats=9, HDop=2.15, Lat=36.3242566,
+                    Lng=138.6393205, RelAlt=-0.04, Alt=940.95, Spd=0.02, GCrs=138.0)
+    path = tmp_path / "plane2013.bin"
+    path.write_bytes(bytes(w.data))
+    from fuser.dataflash import read_dataflash
+
+    data = read_dataflash(path)
+    assert len(data.t_ns) == 100 and data.gnss == []
+    assert data.skipped == {"unreadable_GPS": 10}
+    np.testing.assert_allclose(data.accel[0], (0.0, 0.0, -9.81), atol=1e-6)
