@@ -1,14 +1,19 @@
-"""``bingham-fuser import``: real sensor logs (BROAD trials, PX4 ULogs) as the MAVLink an autopilot would send.
+"""``bingham-fuser import``: real sensor logs (BROAD trials, PX4 ULogs, ArduPilot DataFlash logs) as the
+MAVLink an autopilot would send.
 
-Each IMU sample is packed as a MAVLink 2 HIGHRES_IMU frame (and, for PX4, the
-EKF2 attitude as ATTITUDE_QUATERNION), the bytes are decoded back by the
+Each IMU sample is packed as a MAVLink 2 HIGHRES_IMU frame (its ``id`` the IMU
+instance, the magnetometer in it where the log has one for that message), the
+autopilot's attitude as its attitude stream (PX4's EKF2 as
+ATTITUDE_QUATERNION, ArduPilot's ATT as ATTITUDE), GNSS fixes as
+:data:`GNSS_MESSAGE`; the bytes are decoded back by the
 project's own :class:`drivers.mavlink_decode.MavlinkDecoder`, and the decoded
 samples are recorded to an MCAP that ``bingham-fuser replay`` reads. The
 reference attitude goes on ``/truth/pose`` (``McapRecorder.write_truth``):
 for BROAD it is the optical motion-capture truth; for PX4 it is EKF2's
-``vehicle_attitude`` (a *reference*, not truth: the MCAP metadata says so).
-Sender times: sample ``i`` of BROAD is stamped ``i / fs`` (fs = 285.714 Hz,
-exactly 3500 us); PX4 samples keep their ULog ``timestamp`` (us since boot).
+``vehicle_attitude``, for ArduPilot its ATT (a *reference*, not truth: the
+MCAP metadata says so). Sender times: sample ``i`` of BROAD is stamped
+``i / fs`` (fs = 285.714 Hz, exactly 3500 us); PX4 samples keep their ULog
+``timestamp`` (us since boot), DataFlash records their ``TimeUS``/``TimeMS``.
 Receive time = sender time + 1 ms (a fixed link latency, as in the simulator).
 
 Frames and units (every conversion is a product with a fixed rotation; no

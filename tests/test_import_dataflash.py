@@ -10,7 +10,9 @@ replayed through the fuser against the autopilot's attitude.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import io
 import math
 import subprocess
 import sys
@@ -23,6 +25,7 @@ from core import quaternion as quat
 from core.earth_field import decimal_year, field_ned_gauss
 from drivers.samples import AttitudeSample, GnssSample, ImuSample
 from drivers.sim import SimConfig, measure, multirotor_trajectory
+from fuser.cli import main
 from fuser.record import read_log
 
 from dataflash_writer import DataFlashWriter
@@ -207,11 +210,12 @@ def written(request, tmp_path_factory) -> Written:
 
 @pytest.fixture(scope="module")
 def imported(written):
+    """``bingham-fuser import LOG.BIN -o LOG.mcap`` (the command, in this process): the MCAP and what it printed."""
     out = written.path.with_suffix(".mcap")
-    run = subprocess.run([sys.executable, "-m", "fuser.cli", "import", str(written.path), "-o", str(out)],
-                         capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert run.returncode == 0, run.stderr
-    return out, run.stdout
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["import", str(written.path), "-o", str(out)]) == 0
+    return out, printed.getvalue()
 
 
 # -- the writer, checked by an independent parser ------------------------------------------------------
@@ -316,9 +320,7 @@ def test_replay_follows_the_autopilots_attitude(written, imported, tmp_path):
     out, _ = imported
     fused = tmp_path / "fused.mcap"
     rate = ["--rate", "50"] if written.path.stem == "old" else []  # a 50 Hz IMU: one tick per sample
-    run = subprocess.run([sys.executable, "-m", "fuser.cli", "replay", str(out), "-o", str(fused), "--config",
-                          str(out.with_suffix(".toml")), *rate], capture_output=True, text=True, timeout=120, cwd=ROOT)
-    assert run.returncode == 0, run.stderr
+    assert main(["replay", str(out), "-o", str(fused), "--config", str(out.with_suffix(".toml")), *rate]) == 0
     contents = read_log(fused)
     est = [e for e in contents.estimates() if e.sensor_t_ns is not None]
     truth = contents.truth()
