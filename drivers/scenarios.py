@@ -1,8 +1,10 @@
-"""Named cuts of the simulated flight, with the faults a real flight log has.
+"""Named simulated flights, with the faults a real flight log has.
 
-Each scenario is a window of :func:`drivers.sim.simulate`'s programme,
-optionally with a magnet near the sensor or a lossy IMU link. They are
-what ``logs/`` holds and what the tests replay.
+The multirotor scenarios are windows of :func:`drivers.sim.simulate`'s
+programme, optionally with a magnet near the sensor or a lossy IMU link;
+``logs/`` holds them and the tests replay them. The fixed-wing scenarios are
+JSBSim's (:mod:`drivers.jsbsim_flight`, needs the ``jsbsim`` package), with
+and without GNSS, so that what GNSS aiding buys can be measured.
 """
 
 from __future__ import annotations
@@ -11,15 +13,18 @@ import dataclasses
 
 import numpy as np
 
+from . import jsbsim_flight
 from .sim import Flight, SimConfig, simulate
 
-__all__ = ["SCENARIOS", "flight", "scenario"]
+__all__ = ["SCENARIOS", "flight", "require", "scenario"]
 
 SCENARIOS: dict[str, str] = {
     "hover": "the first 12 s: hover with small attitude changes",
     "aggressive": "4-32 s: hover, banked turns, then fast manoeuvres up to 500 deg/s",
     "magnet": "hover with a magnet brought near the sensor from 6 s to 9 s",
     "dropout": "hover and turns with 20% of IMU samples lost and a 0.5 s outage",
+    "fixedwing": "JSBSim Cessna 172, 4 min: sustained 30 and 45 deg coordinated turns, a climb, a 35 deg loiter; with GNSS",
+    "fixedwing-nognss": "the same fixed-wing flight without GNSS",
 }
 
 _MAGNET_GAUSS = np.array([0.35, -0.25, 0.1])
@@ -29,10 +34,16 @@ _MAGNET_GAUSS = np.array([0.35, -0.25, 0.1])
 def _window(flight: Flight, start_s: float, end_s: float) -> Flight:
     t = (flight.t_ns - flight.t_ns[0]) * 1e-9
     keep = (t >= start_s) & (t < end_s)
-    first, last = int(np.argmax(keep)), int(len(keep) - np.argmax(keep[::-1]))
-    att = (flight.attitude_index >= first) & (flight.attitude_index < last)
-    sliced = {f.name: getattr(flight, f.name)[first:last] for f in dataclasses.fields(flight) if f.name not in ("attitude_index", "q_attitude")}
-    return Flight(**sliced, attitude_index=flight.attitude_index[att] - first, q_attitude=flight.q_attitude[att])
+    return flight.cut(int(np.argmax(keep)), int(len(keep) - np.argmax(keep[::-1])))
+
+
+_FIXED_WING = ("fixedwing", "fixedwing-nognss")
+
+
+def require(name: str) -> None:
+    """Raise ImportError naming the package a scenario needs and how to install it, if it is missing."""
+    if name in _FIXED_WING:
+        jsbsim_flight.require_jsbsim()
 
 
 def scenario(name: str, seed: int = 0, imu_rate_hz: float = 200.0) -> Flight:
@@ -50,6 +61,9 @@ def scenario(name: str, seed: int = 0, imu_rate_hz: float = 200.0) -> Flight:
         flight = simulate(SimConfig(seed=seed, duration_s=16.0, imu_rate_hz=imu_rate_hz, dropout_probability=0.2))
         t = (flight.t_ns - flight.t_ns[0]) * 1e-9
         return dataclasses.replace(flight, imu_valid=flight.imu_valid & ~((t >= 11.0) & (t < 11.5)))
+    if name in _FIXED_WING:
+        config = jsbsim_flight.fixed_wing_config(seed=seed, imu_rate_hz=imu_rate_hz, gnss=name == "fixedwing")
+        return jsbsim_flight.simulate_fixed_wing(config)
     raise ValueError(f"unknown scenario {name!r}; choose from {', '.join(SCENARIOS)}")
 
 

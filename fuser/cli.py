@@ -5,7 +5,7 @@
     bingham-fuser replay flight.mcap -o fused.mcap
     bingham-fuser listen
     bingham-fuser report fused.mcap -o report/
-    bingham-fuser import trial.hdf5 -o trial.mcap   (BROAD trial or PX4 .ulg -> MCAP)
+    bingham-fuser import trial.hdf5 -o trial.mcap   (BROAD trial, PX4 .ulg or ArduPilot .bin -> MCAP)
 
 Every setting can also come from a TOML file (``--config``); flags win.
 """
@@ -101,14 +101,14 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("log", help="input log (.mcap or .tlog)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
 
-    p = sub.add_parser("import", help="convert a BROAD trial (.hdf5) or a PX4 ULog (.ulg) into a replayable MCAP",
-                       description="Encode a real log's IMU (and a PX4 log's EKF2 attitude) as MAVLink, decode it with the "
-                                   "project's driver and record an MCAP with the truth / reference attitude on /truth/pose. "
+    p = sub.add_parser("import", help="convert a BROAD trial (.hdf5), a PX4 ULog (.ulg) or an ArduPilot DataFlash log (.bin) into a replayable MCAP",
+                       description="Encode a real log's IMU, magnetometer and GNSS (and the autopilot's attitude) as MAVLink, decode "
+                                   "them with the project's driver and record an MCAP with the truth / reference attitude on /truth/pose. "
                                    "Needs h5py (BROAD) or pyulog (PX4): pip install 'bingham-fuser[import]'. See fuser/importers.py.")
     _common(p)
-    p.add_argument("source", help="BROAD trial .hdf5 or PX4 .ulg")
+    p.add_argument("source", help="BROAD trial .hdf5, PX4 .ulg or ArduPilot .bin")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP to write")
-    p.add_argument("--format", choices=("broad", "px4"), help="input format (default: from the file extension)")
+    p.add_argument("--format", choices=("broad", "px4", "dataflash"), help="input format (default: from the file extension)")
     p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds (default: 0)")
     p.add_argument("--duration", type=float, metavar="S", help="keep only S seconds (default: all)")
     p.add_argument("--config-out", metavar="FILE.toml", help="TOML with the measured reference field, for replay --config "
@@ -152,10 +152,16 @@ def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
 
 def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
     from drivers.scenarios import flight as make_flight
+    from drivers.scenarios import require as require_scenario
     from fuser.pipeline import Pipeline
     from fuser.record import McapRecorder, RecorderProcess
     from fuser.simulate import run_sim
 
+    try:
+        require_scenario(args.scenario)
+    except ImportError as exc:  # an optional dependency of the scenario (jsbsim for fixedwing)
+        print(f"sim: {exc}", file=sys.stderr)
+        return 2
     if args.send or args.send_can:
         from fuser.sender import run_sender
 
@@ -272,16 +278,23 @@ def _cmd_import(args: argparse.Namespace, config: FuserConfig) -> int:  # noqa: 
     except ValueError as exc:
         print(f"import: {exc}", file=sys.stderr)
         return 2
-    module = {"broad": "h5py", "px4": "pyulog"}[fmt]
+    module = {"broad": "h5py", "px4": "pyulog"}.get(fmt)  # DataFlash: pymavlink, a core dependency
     try:
-        __import__(module)
+        if module:
+            __import__(module)
     except ImportError:
         print(f"import: reading {fmt} logs needs the '{module}' package: pip install 'bingham-fuser[import]' "
               f"(or pip install {module})", file=sys.stderr)
         return 2
     cfg_out = str(Path(args.output).with_suffix(".toml")) if args.config_out is None else (args.config_out or None)
-    s = import_log(args.source, args.output, fmt, args.start, args.duration, cfg_out)
-    print(f"import: {s.imu} IMU + {s.attitude} attitude messages through MAVLink, {s.truth} reference attitudes -> {s.path}")
+    try:
+        s = import_log(args.source, args.output, fmt, args.start, args.duration, cfg_out)
+    except (OSError, ValueError) as exc:
+        print(f"import: {exc}", file=sys.stderr)
+        return 2
+    print(f"import: {s.imu} IMU + {s.attitude} attitude + {s.gnss} GNSS messages through MAVLink, {s.truth} reference attitudes -> {s.path}")
+    if s.skipped:
+        print(f"not imported: {s.skipped}")
     print(f"reference field (N, E, D gauss): {s.mag_field_ned_gauss}" + (f"; replay with --config {s.config_path}" if s.config_path else ""))
     refused = {k: v for k, v in s.decoder_stats.items() if k != "accepted" and v}
     if refused:

@@ -1,14 +1,19 @@
-"""``bingham-fuser import``: real sensor logs (BROAD trials, PX4 ULogs) as the MAVLink an autopilot would send.
+"""``bingham-fuser import``: real sensor logs (BROAD trials, PX4 ULogs, ArduPilot DataFlash logs) as the
+MAVLink an autopilot would send.
 
-Each IMU sample is packed as a MAVLink 2 HIGHRES_IMU frame (and, for PX4, the
-EKF2 attitude as ATTITUDE_QUATERNION), the bytes are decoded back by the
+Each IMU sample is packed as a MAVLink 2 HIGHRES_IMU frame (its ``id`` the IMU
+instance, the magnetometer in it where the log has one for that message), the
+autopilot's attitude as its attitude stream (PX4's EKF2 as
+ATTITUDE_QUATERNION, ArduPilot's ATT as ATTITUDE), GNSS fixes as
+:data:`GNSS_MESSAGE`; the bytes are decoded back by the
 project's own :class:`drivers.mavlink_decode.MavlinkDecoder`, and the decoded
 samples are recorded to an MCAP that ``bingham-fuser replay`` reads. The
 reference attitude goes on ``/truth/pose`` (``McapRecorder.write_truth``):
 for BROAD it is the optical motion-capture truth; for PX4 it is EKF2's
-``vehicle_attitude`` (a *reference*, not truth: the MCAP metadata says so).
-Sender times: sample ``i`` of BROAD is stamped ``i / fs`` (fs = 285.714 Hz,
-exactly 3500 us); PX4 samples keep their ULog ``timestamp`` (us since boot).
+``vehicle_attitude``, for ArduPilot its ATT (a *reference*, not truth: the
+MCAP metadata says so). Sender times: sample ``i`` of BROAD is stamped
+``i / fs`` (fs = 285.714 Hz, exactly 3500 us); PX4 samples keep their ULog
+``timestamp`` (us since boot), DataFlash records their ``TimeUS``/``TimeMS``.
 Receive time = sender time + 1 ms (a fixed link latency, as in the simulator).
 
 Frames and units (every conversion is a product with a fixed rotation; no
@@ -45,6 +50,23 @@ PX4 ULog (``sensor_combined``, ``vehicle_attitude``)
       reference field says otherwise: the reference field below carries the
       declination EKF2 learned.
 
+    * GNSS, when the log has it (``vehicle_gps_position``, or ``sensor_gps`` on
+      newer firmware; position as ``lat``/``lon``/``alt`` in 1e-7 degrees and mm,
+      or ``latitude_deg``/``longitude_deg``/``altitude_msl_m`` on newer
+      firmware): ``vel_n_m_s``, ``vel_e_m_s``, ``vel_d_m_s`` (NED, valid when
+      ``vel_ned_valid`` and ``fix_type`` >= 2), ``s_variance_m_s`` (despite its
+      name the one-sigma speed accuracy in m/s, as the message documents it),
+      ``fix_type`` (PX4's values are MAVLink's GPS_FIX_TYPE), stamped with
+      ``timestamp_sample`` where the message has it, else ``timestamp``.
+
+ArduPilot DataFlash (``.bin``)
+    See :mod:`fuser.dataflash`: already body FRD, world NED; IMU and MAG of
+    every instance, GPS and the autopilot's ATT attitude, the log's own time.
+
+GNSS samples travel as MAVLink like the rest (:data:`GNSS_MESSAGE`): the
+receiver's GPS_RAW_INT carries ground speed and course, not the vertical
+velocity.
+
 Reference field
     The fuser wants ``mag_field_ned_gauss`` (north, east, down). For BROAD it
     is measured from the data itself, causally: the per-sample magnetometer
@@ -53,9 +75,14 @@ Reference field
     put on magnetic north (declination 0: BROAD's ENU frame is the
     magnetometer's). For PX4 it is EKF2's own earth-field state
     (``estimator_status.states[16:19]``, gauss NED, median over the log) when
-    the log has it, so declination is included; otherwise (as in pyulog's
-    sample.ulg, whose estimator logs no field state and whose declination
-    parameter is 0) it is measured at rest like BROAD's. It is written to the MCAP metadata
+    the log has it, so declination is included; otherwise it is the World
+    Magnetic Model's at the first 3-D fix when the log has GNSS, else (as in
+    pyulog's sample.ulg, whose estimator logs no field state, whose
+    declination parameter is 0 and which has no GNSS) it is measured at rest
+    like BROAD's. For DataFlash it is the
+    World Magnetic Model's (:mod:`core.earth_field`) at the first 3-D fix, on
+    the fix's date (declination included, as ArduPilot's heading is from true
+    north), else measured at rest. It is written to the MCAP metadata
     (``fuser`` record) and to a TOML file for ``replay --config``.
 """
 
@@ -65,23 +92,26 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
-
 import numpy as np
 
+from core import earth_field
 from core import quaternion as quat
 from drivers.mavlink_decode import MavlinkDecoder
 from drivers.mavlink_encode import MavlinkEncoder
-from drivers.samples import AttitudeSample, ImuSample, SourceId
+from drivers.samples import AttitudeSample, GnssSample, ImuSample, SourceId
 
 __all__ = [
     "BROAD_ATTRIBUTION",
+    "FORMATS",
+    "GNSS_MESSAGE",
     "PX4_ATTRIBUTION",
     "Q_NE",
     "Q_SB",
     "ImportSummary",
+    "ImuStream",
     "SensorData",
     "broad_quat_from_ned",
+    "field_from_gnss",
     "field_from_rest",
     "import_log",
     "read_broad",
@@ -110,16 +140,28 @@ Q_NE = np.array([0.0, S2, S2, 0.0])
 """World ENU -> world NED: 180 degrees about (1, 1, 0)/sqrt(2)."""
 UT_TO_GAUSS = 0.01
 LINK_LATENCY_NS = 1_000_000
+GNSS_MESSAGE = "GPS_RAW_INT"
+"""How imported GNSS fixes travel; "GPS_INPUT" (NED velocity and its accuracy) once drivers/ encodes it."""
+MAVLINK_SOURCE = SourceId("mavlink", 1, 1, 0)
+
+
+@dataclass
+class ImuStream:
+    """One IMU's samples: sender times (int64 ns), gyro (n, 3) rad/s, specific force (n, 3) m/s^2, body FRD,
+    and the magnetometer (n, 3) gauss that each IMU message carries (NaN rows: none in that message)."""
+
+    instance: int
+    t_ns: np.ndarray
+    gyro: np.ndarray
+    accel: np.ndarray
+    mag: np.ndarray | None
 
 
 @dataclass
 class SensorData:
     """One log in the project's conventions: body FRD, world NED, SI units, magnetometer in gauss."""
 
-    t_ns: np.ndarray  # sender time of each IMU sample (int64)
-    gyro: np.ndarray  # (n, 3) rad/s
-    accel: np.ndarray  # (n, 3) m/s^2
-    mag: np.ndarray | None  # (n, 3) gauss
+    imus: list[ImuStream]  # one per IMU instance, the first is the primary
     ref_t_ns: np.ndarray  # reference attitude times
     ref_q: np.ndarray  # (m, 4) body FRD -> world NED, NaN rows where unknown
     reference: str  # "truth (...)" or "EKF2 (...)"
@@ -127,8 +169,28 @@ class SensorData:
     source: str
     mag_field_ned_gauss: tuple[float, float, float]
     field_source: str = "mean of the first 2 s at rest (norm, dip; declination 0)"
-    attitude_stream: bool = False  # also send ref_q as ATTITUDE_QUATERNION (the autopilot's estimate)
+    attitude_stream: bool = False  # also send ref_q as the autopilot's attitude messages
+    attitude_message: str = "ATTITUDE_QUATERNION"  # PX4's; ArduPilot sends ATTITUDE
+    gnss: list[GnssSample] = field(default_factory=list)  # fixes, in time order
+    skipped: dict[str, int] = field(default_factory=dict)  # records not imported, by reason
     extra: dict[str, np.ndarray] = field(default_factory=dict)  # e.g. BROAD's movement mask
+
+    @property
+    def t_ns(self) -> np.ndarray:
+        """The primary IMU's sample times."""
+        return self.imus[0].t_ns
+
+    @property
+    def gyro(self) -> np.ndarray:
+        return self.imus[0].gyro
+
+    @property
+    def accel(self) -> np.ndarray:
+        return self.imus[0].accel
+
+    @property
+    def mag(self) -> np.ndarray | None:
+        return self.imus[0].mag
 
 
 @dataclass(frozen=True)
@@ -140,6 +202,8 @@ class ImportSummary:
     decoder_stats: dict
     mag_field_ned_gauss: tuple[float, float, float]
     config_path: Path | None
+    gnss: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)
 
 
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -199,10 +263,7 @@ def read_broad(path: str | Path, start_s: float = 0.0, duration_s: float | None 
     # time_usec travels in microseconds: stamp on whole microseconds (1/fs is exactly 3500 us)
     t_ns = (t_ns // 1000) * 1000
     return SensorData(
-        t_ns=t_ns,
-        gyro=gyro,
-        accel=accel,
-        mag=mag_g,
+        imus=[ImuStream(0, t_ns, gyro, accel, mag_g)],
         ref_t_ns=t_ns.copy(),
         ref_q=broad_quat_to_ned(q_es[sl]),
         reference="truth (BROAD opt_quat, optical motion capture)",
@@ -217,11 +278,53 @@ def _ulog_vec(d: dict, name: str) -> np.ndarray:
     return np.column_stack([np.asarray(d[f"{name}[{i}]"], dtype=float) for i in range(3)])
 
 
+def field_from_gnss(fixes: list[GnssSample], unix_time_s: float | None) -> tuple[float, float, float] | None:
+    """The World Magnetic Model field at the first 3-D fix with a position, on the given date; None without one."""
+    if unix_time_s is None:
+        return None
+    first = next((g for g in fixes if g.fix_type >= 3 and g.lat_deg is not None), None)
+    if first is None:
+        return None
+    return earth_field.field_ned_gauss(first.lat_deg, first.lon_deg, first.alt_m, earth_field.decimal_year(unix_time_s))  # type: ignore[arg-type]
+
+
+def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None) -> tuple[list[GnssSample], float | None]:
+    """GnssSamples of ``vehicle_gps_position`` (else ``sensor_gps``) within the cut, and the UTC time of
+    the first 3-D fix that has one (seconds since 1970), for the magnetic model's date."""
+    d = topics.get("vehicle_gps_position") or topics.get("sensor_gps")
+    if d is None:
+        return [], None
+    stamp = d["timestamp_sample"] if "timestamp_sample" in d and np.all(np.asarray(d["timestamp_sample"]) > 0) else d["timestamp"]
+    t_us = np.asarray(stamp, dtype=np.int64)
+    if "latitude_deg" in d:  # newer firmware
+        lat, lon, alt = (np.asarray(d[k], dtype=float) for k in ("latitude_deg", "longitude_deg", "altitude_msl_m"))
+    else:  # 1e-7 degrees and millimetres
+        lat, lon, alt = np.asarray(d["lat"]) * 1e-7, np.asarray(d["lon"]) * 1e-7, np.asarray(d["alt"]) * 1e-3
+    fix = np.asarray(d["fix_type"], dtype=int)
+    vel_valid = np.asarray(d["vel_ned_valid"], dtype=bool) if "vel_ned_valid" in d else np.ones(len(fix), dtype=bool)
+    vel = np.column_stack([np.asarray(d[f"vel_{a}_m_s"], dtype=float) for a in "ned"])
+    accuracy = np.asarray(d["s_variance_m_s"], dtype=float)
+    utc = np.asarray(d.get("time_utc_usec", np.zeros(len(fix))), dtype=np.int64)
+    fixes, first_utc = [], None
+    for i in np.flatnonzero((t_us >= t0_us) & (t_us < t1_us if t1_us is not None else True)):
+        has_position = fix[i] >= 2
+        fixes.append(GnssSample(
+            int(t_us[i]) * 1000, int(fix[i]),
+            tuple(float(v) for v in vel[i]) if vel_valid[i] and fix[i] >= 2 else None,  # type: ignore[arg-type]
+            bool(fix[i] >= 3), float(accuracy[i]) if accuracy[i] > 0 else None,
+            float(lat[i]) if has_position else None, float(lon[i]) if has_position else None,
+            float(alt[i]) if has_position else None, False, MAVLINK_SOURCE,
+        ))
+        if first_utc is None and fix[i] >= 3 and utc[i] > 0:
+            first_utc = utc[i] * 1e-6
+    return fixes, first_utc
+
+
 def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = None, field_rest_s: float = 2.0) -> SensorData:
-    """A PX4 ULog's ``sensor_combined`` and ``vehicle_attitude`` (already FRD/NED, SI, gauss)."""
+    """A PX4 ULog's ``sensor_combined``, ``vehicle_attitude`` and GNSS (already FRD/NED, SI, gauss)."""
     from pyulog import ULog
 
-    ulog = ULog(str(path), ["sensor_combined", "vehicle_attitude", "estimator_status"])
+    ulog = ULog(str(path), ["sensor_combined", "vehicle_attitude", "estimator_status", "vehicle_gps_position", "sensor_gps"])
     topics = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
     sc, va = topics["sensor_combined"], topics["vehicle_attitude"]
     t_us = np.asarray(sc["timestamp"], dtype=np.int64)
@@ -234,6 +337,7 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
     va_t = np.asarray(va["timestamp"], dtype=np.int64)
     va_keep = (va_t >= t0) & (va_t < t1 if t1 is not None else True)
     ref_q = np.column_stack([np.asarray(va[f"q[{i}]"], dtype=float) for i in range(4)])[va_keep]
+    gnss, first_utc = _px4_gnss(topics, t0, t1)
     mag_field, field_source = None, "EKF2 earth-field state (estimator_status.states[16:19], median)"
     if "estimator_status" in topics and "states[18]" in topics["estimator_status"]:
         es = topics["estimator_status"]
@@ -241,15 +345,14 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
         states = states[np.linalg.norm(states, axis=1) > 0.05]  # before EKF2 initialises its field the state is zero
         if len(states):
             mag_field = tuple(float(v) for v in np.median(states, axis=0))
+    if mag_field is None and (mag_field := field_from_gnss(gnss, first_utc)) is not None:
+        field_source = "World Magnetic Model at the first 3-D fix (declination included)"
     if mag_field is None and mag is not None:
         rest = np.asarray(sc["timestamp"])[keep] < t0 + field_rest_s * 1e6
         mag_field = field_from_rest(accel[rest], mag[rest])
         field_source = f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)"
     return SensorData(
-        t_ns=t_us[keep] * 1000,
-        gyro=gyro,
-        accel=accel,
-        mag=mag,
+        imus=[ImuStream(0, t_us[keep] * 1000, gyro, accel, mag)],
         ref_t_ns=va_t[va_keep] * 1000,
         ref_q=ref_q,
         reference="EKF2 (PX4 vehicle_attitude: the autopilot's estimate, NOT ground truth)",
@@ -258,15 +361,32 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
         mag_field_ned_gauss=mag_field or (0.21, 0.0, 0.43),
         attitude_stream=True,
         field_source=field_source,
+        gnss=gnss,
     )
 
 
-def _events(data: SensorData) -> Iterator[tuple[int, str, int]]:
-    """(sender time, kind, index) of every message, in sender-time order (IMU first on ties)."""
-    imu = [(int(t), 0, i) for i, t in enumerate(data.t_ns)]
-    att = [(int(t), 1, i) for i, t in enumerate(data.ref_t_ns)] if data.attitude_stream else []
-    for t, kind, i in sorted(imu + att):
-        yield t, ("imu" if kind == 0 else "attitude"), i
+_IMU, _ATTITUDE, _GNSS = 0, 1, 2
+
+
+def _events(data: SensorData) -> list[tuple[int, int, int, int]]:
+    """(sender time, kind, IMU stream, index) of every message, in sender-time order (IMUs first on ties)."""
+    events = [(int(t), _IMU, j, i) for j, imu in enumerate(data.imus) for i, t in enumerate(imu.t_ns.tolist())]
+    if data.attitude_stream:
+        events += [(int(t), _ATTITUDE, 0, i) for i, t in enumerate(data.ref_t_ns.tolist())]
+    events += [(g.t_ns, _GNSS, 0, i) for i, g in enumerate(data.gnss)]
+    return sorted(events)
+
+
+def _sample(data: SensorData, kind: int, stream: int, i: int, t_ns: int) -> tuple[object, str]:
+    """The sample and the MAVLink message of one event."""
+    if kind == _IMU:
+        imu = data.imus[stream]
+        mag = None if imu.mag is None or np.isnan(imu.mag[i, 0]) else tuple(float(v) for v in imu.mag[i])
+        source = SourceId("mavlink", 1, 1, imu.instance)
+        return ImuSample(t_ns, tuple(float(v) for v in imu.gyro[i]), tuple(float(v) for v in imu.accel[i]), mag, source), "HIGHRES_IMU"  # type: ignore[arg-type]
+    if kind == _ATTITUDE:
+        return AttitudeSample(t_ns, tuple(float(v) for v in quat.normalize(data.ref_q[i])), MAVLINK_SOURCE), data.attitude_message  # type: ignore[arg-type]
+    return data.gnss[i], GNSS_MESSAGE
 
 
 def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None = None) -> ImportSummary:
@@ -276,7 +396,6 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     out = Path(out)
     encoder = MavlinkEncoder(system=1, component=1)
     decoder = MavlinkDecoder()
-    source = SourceId("mavlink", 1, 1, 0)
     field_ned = tuple(round(float(v), 6) for v in data.mag_field_ned_gauss)
     metadata = {
         "source": data.source,
@@ -286,21 +405,20 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
         "mag_field_ned_gauss": ",".join(f"{v:.6f}" for v in field_ned),
         "mag_field_source": data.field_source,
     }
-    counts = {"imu": 0, "attitude": 0, "truth": 0}
+    if data.skipped:
+        metadata["skipped"] = ", ".join(f"{k}={v}" for k, v in sorted(data.skipped.items()))
+    counts = {ImuSample: 0, AttitudeSample: 0, GnssSample: 0}
+    truth = 0
     with McapRecorder(out, metadata=metadata) as rec:
-        for t_ns, kind, i in _events(data):
-            if kind == "imu":
-                mag = None if data.mag is None else tuple(float(v) for v in data.mag[i])
-                sample = ImuSample(t_ns, tuple(float(v) for v in data.gyro[i]), tuple(float(v) for v in data.accel[i]), mag, source)  # type: ignore[arg-type]
-            else:
-                sample = AttitudeSample(t_ns, tuple(float(v) for v in quat.normalize(data.ref_q[i])), source)  # type: ignore[arg-type]
-            for decoded in decoder.feed(encoder.encode(sample)):
+        for t_ns, kind, stream, i in _events(data):
+            sample, message = _sample(data, kind, stream, i, t_ns)
+            for decoded in decoder.feed(encoder.encode(sample, message)):  # type: ignore[arg-type]
                 rec.write_sample(decoded, decoded.t_ns + LINK_LATENCY_NS)
-                counts["imu" if isinstance(decoded, ImuSample) else "attitude"] += 1
+                counts[type(decoded)] += 1
         for t_ns, q in zip(data.ref_t_ns, data.ref_q):
             if np.all(np.isfinite(q)):
                 rec.write_truth(int(t_ns), tuple(float(v) for v in quat.normalize(q)))  # type: ignore[arg-type]
-                counts["truth"] += 1
+                truth += 1
     cfg = None
     if config_path is not None:
         cfg = Path(config_path)
@@ -308,7 +426,11 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
             f"# reference field for {out.name}, measured by bingham-fuser import (see fuser/importers.py)\n"
             f"[fuser]\nmag_field_ned_gauss = [{field_ned[0]}, {field_ned[1]}, {field_ned[2]}]\n"
         )
-    return ImportSummary(out, counts["imu"], counts["attitude"], counts["truth"], dict(decoder.stats), field_ned, cfg)  # type: ignore[arg-type]
+    return ImportSummary(out, counts[ImuSample], counts[AttitudeSample], truth, dict(decoder.stats), field_ned, cfg,  # type: ignore[arg-type]
+                         counts[GnssSample], dict(data.skipped))
+
+
+FORMATS = {"broad": "a BROAD trial (.hdf5)", "px4": "a PX4 ULog (.ulg)", "dataflash": "an ArduPilot DataFlash log (.bin)"}
 
 
 def detect_format(path: str | Path) -> str:
@@ -317,7 +439,9 @@ def detect_format(path: str | Path) -> str:
         return "broad"
     if suffix == ".ulg":
         return "px4"
-    raise ValueError(f"cannot tell the format of {path}: expected a BROAD trial (.hdf5) or a PX4 ULog (.ulg)")
+    if suffix == ".bin":
+        return "dataflash"
+    raise ValueError(f"cannot tell the format of {path}: expected {', '.join(FORMATS.values())}")
 
 
 def import_log(
@@ -328,7 +452,9 @@ def import_log(
     duration_s: float | None = None,
     config_path: str | Path | None = None,
 ) -> ImportSummary:
-    """Read a BROAD trial or PX4 ULog and write the MCAP ``out`` (and the TOML ``config_path``)."""
+    """Read a BROAD trial, PX4 ULog or ArduPilot DataFlash log and write the MCAP ``out`` (and the TOML ``config_path``)."""
+    from fuser.dataflash import read_dataflash
+
     fmt = fmt or detect_format(path)
-    reader = {"broad": read_broad, "px4": read_px4}[fmt]
+    reader = {"broad": read_broad, "px4": read_px4, "dataflash": read_dataflash}[fmt]
     return write_mcap(reader(path, start_s, duration_s), out, config_path)

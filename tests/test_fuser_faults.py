@@ -175,10 +175,12 @@ def test_link_outage_garbage_subscriber_restart_and_recorder_kill(tmp_path: Path
     # 3. garbage is counted by both drivers and does not cost the valid packets
     sent_imu = report["imu_sent"]
     attitude_sent = int(np.sum(~_in(flight, flight.attitude_index, OUTAGE_AT_S, OUTAGE_S)))
+    gnss_sent = int(np.sum(~_in(flight, flight.gnss.index, OUTAGE_AT_S, OUTAGE_S)))  # GPS_RAW_INT: the simulator has GNSS
     refused = sum(v for k, v in mav.items() if k in ("garbage", "bad_crc", "bad_frame", "unknown_message"))
     assert report["garbage_bytes"] > 0.9 * GARBAGE_BYTES_PER_S * (flight_s - OUTAGE_S)
     assert refused > 0, mav
-    assert 0.97 * (sent_imu + attitude_sent) <= mav["accepted"] <= sent_imu + attitude_sent, (mav, sent_imu, attitude_sent)
+    sent = sent_imu + attitude_sent + gnss_sent
+    assert 0.97 * sent <= mav["accepted"] <= sent, (mav, sent_imu, attitude_sent, gnss_sent)
     assert dcan.get("accepted", 0) == 0 and sum(v for k, v in dcan.items() if isinstance(v, int) and k not in ("poll_errors", "stalls")) > 0, dcan
 
     # 4. the restarted subscriber receives the estimates published after it connected
