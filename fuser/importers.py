@@ -65,7 +65,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, TextIO
 
 import numpy as np
 
@@ -269,8 +269,12 @@ def _events(data: SensorData) -> Iterator[tuple[int, str, int]]:
         yield t, ("imu" if kind == 0 else "attitude"), i
 
 
-def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None = None) -> ImportSummary:
-    """Encode ``data`` as MAVLink bytes, decode them with the project's driver, record MCAP (+ reference)."""
+def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None = None, progress: TextIO | None = None) -> ImportSummary:
+    """Encode ``data`` as MAVLink bytes, decode them with the project's driver, record MCAP (+ reference).
+
+    ``progress``: where to draw a progress bar (only if it is a terminal).
+    """
+    from fuser.progress import progress_bar
     from fuser.record import McapRecorder
 
     out = Path(out)
@@ -288,7 +292,8 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     }
     counts = {"imu": 0, "attitude": 0, "truth": 0}
     with McapRecorder(out, metadata=metadata) as rec:
-        for t_ns, kind, i in _events(data):
+        total = len(data.t_ns) + (len(data.ref_t_ns) if data.attitude_stream else 0)
+        for t_ns, kind, i in progress_bar(_events(data), total, "import", " messages", progress):
             if kind == "imu":
                 mag = None if data.mag is None else tuple(float(v) for v in data.mag[i])
                 sample = ImuSample(t_ns, tuple(float(v) for v in data.gyro[i]), tuple(float(v) for v in data.accel[i]), mag, source)  # type: ignore[arg-type]
@@ -327,8 +332,9 @@ def import_log(
     start_s: float = 0.0,
     duration_s: float | None = None,
     config_path: str | Path | None = None,
+    progress: TextIO | None = None,
 ) -> ImportSummary:
     """Read a BROAD trial or PX4 ULog and write the MCAP ``out`` (and the TOML ``config_path``)."""
     fmt = fmt or detect_format(path)
     reader = {"broad": read_broad, "px4": read_px4}[fmt]
-    return write_mcap(reader(path, start_s, duration_s), out, config_path)
+    return write_mcap(reader(path, start_s, duration_s), out, config_path, progress)

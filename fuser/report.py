@@ -46,6 +46,8 @@ def score_log(path: str | Path, since_s: float = 5.0) -> list[str]:
     if result is None:
         return [f"{path}: no reference attitude to score against"]
     name, err = result
+    if err.t_ns.size == 0:
+        return [f"{path}: no estimate within the time span of the {name} to score against"]
     if (err.t_ns[-1] - err.t_ns[0]) * 1e-9 <= since_s:
         since_s = 0.0  # too short to leave out the convergence: score all of it
     rms = err.rms(since_s)

@@ -15,7 +15,7 @@ from mcap.writer import CompressionType, Writer
 
 from drivers.samples import AttitudeSample, ImuSample, MagSample, SourceId
 from fuser.codec import Estimate
-from fuser.record import CHANNELS, McapRecorder, RecorderProcess, read_log
+from fuser.record import CHANNELS, McapRecorder, NotAnMcapError, RecorderProcess, read_log
 
 MAV = SourceId("mavlink", 1, 1, 0)
 CAN = SourceId("dronecan", 42, 0, 1)
@@ -170,8 +170,12 @@ def test_truncated_copies_recover_a_prefix_without_exception(tmp_path: Path) -> 
     data = full_path.read_bytes()
     full = read_log(full_path)
     cut_path = tmp_path / "cut.mcap"
+    for cut in (0, 3):  # not even the magic: nothing says this was ever a log
+        cut_path.write_bytes(data[:cut])
+        with pytest.raises(NotAnMcapError):
+            read_log(cut_path)
     recovered = {}
-    for cut in (0, 3, 8, 30, 200, len(data) // 4, len(data) // 2, 3 * len(data) // 4, len(data) - 200, len(data) - 1):
+    for cut in (8, 30, 200, len(data) // 4, len(data) // 2, 3 * len(data) // 4, len(data) - 200, len(data) - 1):
         cut_path.write_bytes(data[:cut])
         log = read_log(cut_path)
         assert not log.complete and log.error, cut
