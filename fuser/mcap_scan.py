@@ -267,6 +267,17 @@ class _Scanner:
         self.counting = False
         """True after a skipped chunk: the message indexes that follow it count its messages."""
         self.counted = False
+        self.last_sound: int | None = None
+        """Opcode of the last record whose header was sound."""
+
+    def _was_chunk(self, pos: int, opcode: int, length: int, resumed_at: int) -> bool:
+        """Whether the damaged record at ``pos``, skipped up to ``resumed_at``, was a chunk (its messages are lost)."""
+        if opcode in (Opcode.CHUNK, Opcode.MESSAGE_INDEX):
+            return opcode == Opcode.CHUNK
+        if pos + _RECORD.size + length == resumed_at:  # only the opcode byte is damaged: the fields tell
+            return _consistent_chunk(self.buf, pos, self.size)
+        # message indexes follow their chunk: resuming on one that no chunk read just now precedes means a chunk was lost
+        return self.buf[resumed_at] == Opcode.MESSAGE_INDEX and self.last_sound not in (Opcode.CHUNK, Opcode.MESSAGE_INDEX)
 
     def _lost_chunk(self) -> None:
         self._end_count()
@@ -302,8 +313,8 @@ class _Scanner:
                         skipped.bytes += size - pos
                         skipped.note(pos, "damaged record, nothing readable after it")
                     break
-                if opcode == Opcode.CHUNK or (buf[nxt] == Opcode.MESSAGE_INDEX and not self.counting):
-                    self._lost_chunk()  # message indexes follow a chunk: landing on one means one was lost
+                if self._was_chunk(pos, opcode, length, nxt):
+                    self._lost_chunk()
                 skipped.resyncs += 1
                 skipped.bytes += nxt - pos
                 skipped.note(pos, f"damaged record length or opcode; resumed at byte {nxt:,}")
@@ -311,6 +322,7 @@ class _Scanner:
                 continue
             if opcode != Opcode.MESSAGE_INDEX:
                 self._end_count()
+            self.last_sound = opcode
             try:
                 if opcode == Opcode.FOOTER:
                     if buf[end : end + len(MAGIC)] == MAGIC:
