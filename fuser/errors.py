@@ -8,7 +8,7 @@ terms (which file, which port, which option).
 
 from __future__ import annotations
 
-__all__ = ["EXIT_RUNTIME", "EXIT_USAGE", "FuserError", "UsageError"]
+__all__ = ["EXIT_RUNTIME", "EXIT_USAGE", "FuserError", "NotALogError", "UsageError"]
 
 EXIT_RUNTIME = 1
 """It started and failed: a link or port that cannot be opened, a log with nothing readable, a write that failed."""
@@ -27,3 +27,7 @@ class UsageError(FuserError):
     """The command, its arguments, its configuration or its input files are wrong."""
 
     exit_code = EXIT_USAGE
+
+
+class NotALogError(UsageError, ValueError):
+    """The file given as a log is not one at all (empty, random bytes, text, another format)."""

@@ -37,7 +37,7 @@ from mcap.exceptions import McapError
 from mcap.opcode import Opcode
 from mcap.records import Channel, Metadata
 
-from .errors import UsageError
+from .errors import NotALogError
 
 __all__ = ["MAGIC", "NotAnMcapError", "RawMessage", "Scan", "Skipped", "scan_mcap"]
 
@@ -59,7 +59,7 @@ MAX_CHUNK_BYTES = 1 << 30
 
 _KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
 _COMPRESSIONS = ("", "lz4", "zstd")
-class NotAnMcapError(UsageError, ValueError):
+class NotAnMcapError(NotALogError):
     """The file is not an MCAP log (empty, or it does not start with the MCAP magic)."""
 
 

@@ -9,7 +9,7 @@ decoded and encoded again.
 
 A damaged MCAP replays every chunk that can be read (``ReplaySummary.skipped``
 says what could not). A file that is not a log raises
-:class:`~fuser.record.NotAnMcapError`, a log with nothing to replay
+:class:`~fuser.errors.NotALogError`, a log with nothing to replay
 :class:`ReplayError`; in both cases, and whenever replay fails, no output file
 is left behind (it is written under a temporary name and renamed at the end).
 """
@@ -24,17 +24,19 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator, TextIO
+from typing import TYPE_CHECKING, Iterator, TextIO
 
 from drivers.samples import Sample
 from fuser.codec import decode_sample
 from fuser.config import FuserConfig
-from fuser.errors import FuserError
+from fuser.errors import FuserError, NotALogError
 from fuser.inputs import tlog_inputs
 from fuser.mcap_scan import RawMessage, Skipped
-from fuser.pipeline import Pipeline
 from fuser.progress import progress_bar
 from fuser.record import INPUT_TOPICS, LogContents, McapRecorder, read_log
+
+if TYPE_CHECKING:
+    from fuser.pipeline import Pipeline
 
 __all__ = ["ReplayError", "ReplaySummary", "replay"]
 
@@ -81,6 +83,22 @@ def _read_mcap(log: Path) -> tuple[LogContents, list[RawMessage]]:
     return contents, inputs
 
 
+TLOG_PROBE_BYTES = 64 * 1024
+
+
+def _check_tlog(log: Path) -> None:
+    """Refuse a file with no MAVLink start byte (0xFE v1, 0xFD v2) in its first 64 KiB: empty, text, another format.
+
+    A .tlog is records of an 8-byte receive time and a MAVLink packet; what
+    else it holds (garbage, bad CRCs) the decoder counts, so only a file that
+    cannot hold a single packet is refused here.
+    """
+    with open(log, "rb") as f:
+        head = f.read(TLOG_PROBE_BYTES)
+    if b"\xfd" not in head and b"\xfe" not in head:
+        raise NotALogError(f"{log} is not a MAVLink telemetry log ({'it is empty' if not head else 'no MAVLink packet in it'})")
+
+
 def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: TextIO | None = sys.stderr) -> ReplaySummary:
     """Fuse every input of ``log`` (MCAP or .tlog) and record the result to ``out``.
 
@@ -89,7 +107,11 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     log, out = Path(log), Path(out)
     if not log.is_file():  # before pymavlink takes a missing .tlog for a serial port
         raise FileNotFoundError(errno.ENOENT, "no such log file", str(log))
+    if log.suffix == ".tlog":
+        _check_tlog(log)
     contents, messages = (None, None) if log.suffix == ".tlog" else _read_mcap(log)
+    from fuser.pipeline import Pipeline  # noqa: PLC0415 - the model's kernels load only once the log is known to be one
+
     partial = out.with_name(f".{out.name}.{os.getpid()}.partial")
     start = time.monotonic()
     samples = 0
