@@ -30,5 +30,5 @@ def _bar(items: Iterable[T], total: int | None, desc: str, unit: str, stream: Te
     from tqdm import tqdm  # noqa: PLC0415 - only a terminal pays for the import
 
     # mininterval 0.5 s: the bar costs one time check per item, about 60 ns, and a redraw twice a second
-    with tqdm(items, total=total, desc=desc, unit=unit, unit_scale=True, file=stream, mininterval=0.5, dynamic_ncols=True) as bar:
+    with tqdm(items, total=total, desc=desc, unit=unit, file=stream, mininterval=0.5, dynamic_ncols=True) as bar:
         yield from bar
