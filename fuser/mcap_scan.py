@@ -149,7 +149,7 @@ def _chunk_records(body: bytes) -> bytes:
     data = body[pos:]
     try:
         if compression == "zstd":
-            data = zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+            data = zstandard.decompress(data, max_output_size=size)
         elif compression == "lz4":
             import lz4.frame  # noqa: PLC0415 - only logs of other writers use it
 
@@ -160,37 +160,45 @@ def _chunk_records(body: bytes) -> bytes:
         raise _Damaged(f"chunk decompresses to {len(data)} bytes, not {size}")
     if crc != 0 and zlib.crc32(data) != crc:
         raise _Damaged("chunk CRC mismatch")
-    return bytes(data)
+    return bytes(data)  # a copy only for an uncompressed chunk's slice of the file
 
 
-def _chunk_messages(data: bytes, channels: dict[int, str], out: list[tuple[int, int, int, bytes]]) -> None:
+def _chunk_messages(data: bytes, channels: dict[int, str], out: list[RawMessage], orphans: list[tuple[int, int, int, bytes]]) -> None:
     """Append the messages of a chunk's records to ``out``, registering the channels it declares.
 
+    Messages on a channel not (yet) declared go to ``orphans`` as ``(channel id,
+    log time, publish time, data)``, for the summary's channels to name later.
     Parsing the message headers with one ``unpack_from`` each is several times
-    faster than building mcap's record objects. The messages are appended only
-    if the whole chunk parses.
+    faster than building mcap's record objects. Nothing is appended unless the
+    whole chunk parses.
     """
-    found: list[tuple[int, int, int, bytes]] = []
-    declared: dict[int, str] = {}
+    found: list[RawMessage] = []
+    lost: list[tuple[int, int, int, bytes]] = []
+    known = dict(channels)
     pos, size = 0, len(data)
+    unpack_record, unpack_message, header = _RECORD.unpack_from, _MESSAGE.unpack_from, _RECORD.size + _MESSAGE.size
     try:
         while pos < size:
-            opcode, length = _RECORD.unpack_from(data, pos)
-            pos += _RECORD.size
-            end = pos + length
+            opcode, length = unpack_record(data, pos)
+            end = pos + _RECORD.size + length
             if end > size:
                 raise _Damaged(f"record of {length} bytes overruns its chunk")
             if opcode == Opcode.MESSAGE:
-                channel_id, _, log_time, publish_time = _MESSAGE.unpack_from(data, pos)
-                found.append((channel_id, log_time, publish_time, data[pos + _MESSAGE.size : end]))
+                channel_id, _, log_time, publish_time = unpack_message(data, pos + _RECORD.size)
+                topic = known.get(channel_id)
+                if topic is None:
+                    lost.append((channel_id, log_time, publish_time, data[pos + header : end]))
+                else:
+                    found.append(RawMessage(topic, log_time, publish_time, data[pos + header : end]))
             elif opcode == Opcode.CHANNEL:
-                channel = Channel.read(ReadDataStream(BytesIO(data[pos:end])))
-                declared[channel.id] = channel.topic
+                channel = Channel.read(ReadDataStream(BytesIO(data[pos + _RECORD.size : end])))
+                known[channel.id] = channel.topic
             pos = end
     except (McapError, struct.error, UnicodeDecodeError, ValueError) as e:
         raise _Damaged(f"chunk records do not parse ({e})") from e
-    channels.update(declared)
+    channels.update(known)
     out += found
+    orphans += lost
 
 
 def _consistent_chunk(buf: mmap.mmap, pos: int, size: int) -> bool:
@@ -261,7 +269,9 @@ class _Scanner:
     def __init__(self, buf: mmap.mmap, size: int) -> None:
         self.buf, self.size = buf, size
         self.channels: dict[int, str] = {}
-        self.found: list[tuple[int, int, int, bytes]] = []
+        self.found: list[RawMessage] = []
+        self.orphans: list[tuple[int, int, int, bytes]] = []
+        """Messages whose channel was not declared before them (it may be in the summary)."""
         self.metadata: dict[str, dict[str, str]] = {}
         self.skipped = Skipped()
         self.counting = False
@@ -338,8 +348,8 @@ class _Scanner:
                 skipped.note(pos, f"{Opcode(opcode).name.lower()} skipped: {e}")
             pos = end
         self._end_count()
-        messages = []
-        for channel_id, log_time, publish_time, data in self.found:
+        messages = self.found
+        for channel_id, log_time, publish_time, data in self.orphans:
             topic = self.channels.get(channel_id)
             if topic is None:
                 skipped.unknown_channel += 1
@@ -351,7 +361,7 @@ class _Scanner:
 
     def _record(self, opcode: int, body: bytes) -> None:
         if opcode == Opcode.CHUNK:
-            _chunk_messages(_chunk_records(body), self.channels, self.found)
+            _chunk_messages(_chunk_records(body), self.channels, self.found, self.orphans)
         elif opcode == Opcode.MESSAGE_INDEX:
             _, n = _MESSAGE_INDEX.unpack_from(body, 0)
             if n % 16 or _MESSAGE_INDEX.size + n != len(body):
@@ -364,7 +374,7 @@ class _Scanner:
             self.channels[channel.id] = channel.topic
         elif opcode == Opcode.MESSAGE:
             channel_id, _, log_time, publish_time = _MESSAGE.unpack_from(body, 0)
-            self.found.append((channel_id, log_time, publish_time, body[_MESSAGE.size :]))
+            self.orphans.append((channel_id, log_time, publish_time, body[_MESSAGE.size :]))  # named at the end
         elif opcode == Opcode.METADATA:
             record = Metadata.read(ReadDataStream(BytesIO(body)))
             self.metadata[record.name] = dict(record.metadata)
