@@ -475,15 +475,15 @@ def _estimate_sinks(pub: Any, rec: Any) -> list:
 
 
 def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
+    _check_run(args)
+    if args.record:
+        _check_output(args.record, "--record")
     from drivers.sources import DroneCanSource, MavlinkSource
     from fuser.live import LiveRunner
     from fuser.pipeline import Pipeline
     from fuser.record import RecorderProcess
     from fuser.wallclock import WallClock
 
-    _check_run(args)
-    if args.record:
-        _check_output(args.record, "--record")
     with ExitStack() as stack:
         sources: dict[str, Any] = {}
         for conn in args.mavlink:
@@ -545,7 +545,8 @@ def _needs(module: str, extra: str, what: str) -> None:
 
 
 def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
-    from fuser.importers import detect_format, import_log
+    from fuser.errors import NotALogError
+    from fuser.importers import detect_format, read_broad, read_px4, write_mcap
 
     if not Path(args.source).is_file():
         raise UsageError(f"import: no such file: {args.source}")
@@ -556,7 +557,12 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     _needs({"broad": "h5py", "px4": "pyulog"}[fmt], "import", f"reading {fmt} logs")
     _check_output(args.output, "--output")
     cfg_out = str(Path(args.output).with_suffix(".toml")) if args.config_out is None else (args.config_out or None)
-    s = import_log(args.source, args.output, fmt, args.start, args.duration, cfg_out, progress=sys.stderr)
+    reader = {"broad": read_broad, "px4": read_px4}[fmt]
+    try:
+        data = reader(args.source, args.start, args.duration)
+    except Exception as e:  # noqa: BLE001 - h5py and pyulog raise anything on a file that is not theirs
+        raise NotALogError(f"cannot read {args.source} as a {fmt} log: {type(e).__name__}: {e}") from e
+    s = write_mcap(data, args.output, cfg_out, progress=sys.stderr)
     print(f"import: {s.imu} IMU + {s.attitude} attitude messages through MAVLink, {s.truth} reference attitudes -> {s.path}")
     print(f"reference field (N, E, D gauss): {s.mag_field_ned_gauss}" + (f"; replay with --config {s.config_path}" if s.config_path else ""))
     refused = {k: v for k, v in s.decoder_stats.items() if k != "accepted" and v}

@@ -28,6 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from drivers.sim import Flight, dronecan_stream, mavlink_stream
+from fuser.errors import FuserError
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink's first import (see drivers.sources)
 
@@ -184,7 +185,10 @@ def run_sender(args: Any, stop: Callable[[], bool]) -> int:
         import can
 
         interface, _, channel = args.send_can.partition(":")
-        bus = can.Bus(interface=interface, channel=channel)
+        try:
+            bus = can.Bus(interface=interface, channel=channel)
+        except (can.CanError, OSError, ValueError) as e:
+            raise FuserError(f"cannot open CAN bus {args.send_can}: {e}") from e
     start = args.start_at or "+0.2"
     start_at = time.time() + float(start[1:]) if start.startswith("+") else float(start)
     seconds = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
@@ -194,6 +198,8 @@ def run_sender(args: Any, stop: Callable[[], bool]) -> int:
         print(f"sim --send: started {time.time() - start_at:.3f} s late", file=sys.stderr, flush=True)
     try:
         report = send_flight(flight, args.send, bus, start_at, faults, stop)
+    except OSError as e:  # the link would not open, or went away while sending
+        raise FuserError(f"cannot send to {args.send}: {e.strerror or e}") from e
     finally:
         if bus is not None:
             bus.shutdown()

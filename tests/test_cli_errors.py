@@ -209,6 +209,7 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "sim-send-speed": (["sim", "--send", "udpout:127.0.0.1:9", "--speed", "4"], 2, ("--speed must be 1",)),
     "sim-truth-without-send": (["sim", "--truth", "t.npz", "--garbage", "5"], 2, ("--truth, --garbage act only with --send",)),
     "sim-bad-outage": (["sim", "--send", "udpout:127.0.0.1:9", "--outage", "soon"], 2, ("--outage", "AT:SECONDS")),
+    "import-text-named-ulg": (["import", "text.ulg", "-o", "x.mcap"], 2, ("cannot read text.ulg as a px4 log",)),
     "abbreviation": (["sim", "--dur", "5"], 2, ("sim does not take --dur 5",)),
     "unknown-command": (["fly"], 2, ("invalid choice: 'fly'",)),
 }
@@ -223,6 +224,9 @@ def test_options_only_where_they_act(name: str, tmp_path: Path, monkeypatch: pyt
     monkeypatch.chdir(tmp_path)
     (tmp_path / "syntax.toml").write_text("[fuser]\nrate_hz = \n")
     (tmp_path / "unknown.toml").write_text("[fuser]\nmag_sigma = 0.1\n")
+    (tmp_path / "text.ulg").write_text("hello\n")
+    if name == "import-text-named-ulg":
+        pytest.importorskip("pyulog")
     before = {p.name for p in tmp_path.iterdir()}
     assert main(argv) == code
     err = capsys.readouterr().err.splitlines()
