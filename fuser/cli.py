@@ -34,6 +34,7 @@ import sys
 import threading
 import traceback
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, NoReturn, Sequence
 
@@ -488,12 +489,12 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
         sources: dict[str, Any] = {}
         for conn in args.mavlink:
             options = {"baud": args.baud or DEFAULT_BAUD} if _is_serial(conn) else {}
-            sources[f"mavlink:{conn}"] = _open_source(stack, f"MAVLink {conn}", lambda: MavlinkSource(conn, **options))
+            sources[f"mavlink:{conn}"] = _open_source(stack, f"MAVLink {conn}", partial(MavlinkSource, conn, **options))
         for spec in args.can:
             interface, _, channel = spec.partition(":")
             extra = {} if interface in CAN_WITHOUT_BITRATE else {"bitrate": args.bitrate or DEFAULT_BITRATE}
             sources[f"can:{spec}"] = _open_source(stack, f"CAN bus {spec}",
-                                                  lambda: DroneCanSource(interface=interface, channel=channel, **extra))
+                                                  partial(DroneCanSource, interface=interface, channel=channel, **extra))
         pub = _publisher(stack, config, args)
         clock = WallClock.start()
         rec = None

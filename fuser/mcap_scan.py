@@ -12,9 +12,9 @@ in file order, record by record, and keeps whatever is sound:
   that follow a skipped chunk say how many messages it held.
 * a record whose length or opcode is damaged (it would run past the end of
   the file, is not a known opcode, or does not fit its own fields) is
-  resynchronised: the bytes are searched for the next chunk whose header is
-  consistent with its length, and reading resumes there. If none is found
-  the file is taken as cut short at that record.
+  resynchronised: the bytes are searched for the next chunk or message index
+  whose header is consistent with its length, and reading resumes there. If
+  none is found the file is taken as cut short at that record.
 
 Everything skipped is counted (:class:`Skipped`). A file that does not start
 with the MCAP magic is not a log at all: :class:`NotAnMcapError`.
@@ -59,6 +59,10 @@ MAX_CHUNK_BYTES = 1 << 30
 
 _KNOWN_OPCODES = frozenset(int(op) for op in Opcode)
 _COMPRESSIONS = ("", "lz4", "zstd")
+MAX_REASONS = 10
+"""Damages described in :attr:`Skipped.reasons`; further ones are only counted."""
+
+
 class NotAnMcapError(NotALogError):
     """The file is not an MCAP log (empty, or it does not start with the MCAP magic)."""
 
@@ -89,15 +93,13 @@ class Skipped:
     unknown_channel: int = 0
     """Messages on a channel whose definition was lost with a damaged chunk."""
     reasons: list[str] = field(default_factory=list)
-    """One line per damage, in file order (first few only)."""
-
-    MAX_REASONS = 10
+    """One line per damage, in file order (the first ``MAX_REASONS``)."""
 
     def __bool__(self) -> bool:
         return bool(self.chunks or self.bytes or self.unknown_channel)
 
     def note(self, offset: int, what: str) -> None:
-        if len(self.reasons) < self.MAX_REASONS:
+        if len(self.reasons) < MAX_REASONS:
             self.reasons.append(f"at byte {offset:,}: {what}")
 
     def describe(self) -> str:
@@ -114,13 +116,13 @@ class Skipped:
 
 @dataclass
 class Scan:
-    """What :func:`scan_mcap` recovered, in file order."""
+    """What :func:`scan_mcap` recovered: messages in file order (any outside chunks last)."""
 
     messages: list[RawMessage]
     complete: bool
     """True when the file ended with its footer and closing magic and nothing was skipped."""
     error: str | None
-    """Why reading stopped before the footer, if it did (cut short)."""
+    """Why reading stopped before the footer (cut short), or what was damaged; None for a sound file."""
     metadata: dict[str, dict[str, str]]
     skipped: Skipped
 
@@ -225,10 +227,10 @@ def _consistent_index(buf: mmap.mmap, pos: int, size: int) -> bool:
 
 
 _CANDIDATE = re.compile(
-    rb"\x06.{36}(?:\x00\x00\x00\x00|\x03\x00\x00\x00lz4|\x04\x00\x00\x00zstd)|\x07.{4}\x00\x00\x00\x00", re.DOTALL
+    rb"(?=\x06.{36}(?:\x00\x00\x00\x00|\x03\x00\x00\x00lz4|\x04\x00\x00\x00zstd)|\x07.{4}\x00\x00\x00\x00)", re.DOTALL
 )
 """Where a chunk record may start (opcode, length, fixed fields, a known compression), or a message
-index (opcode, a length under 4 GiB)."""
+index (opcode, a length under 4 GiB); a lookahead, so that a false match never hides a true one inside it."""
 
 
 def _resync(buf: mmap.mmap, start: int, size: int) -> int | None:
