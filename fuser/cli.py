@@ -530,6 +530,9 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
         _warn(f"{args.log} is damaged: skipped {summary.skipped.describe()}; replayed the rest")
     elif summary.incomplete:
         _warn(f"{args.log} is incomplete ({summary.incomplete}): replayed its complete chunks")
+    if summary.not_recorded:
+        _warn(f"{sum(summary.not_recorded.values())} records could not be stored in {args.output} and were left out "
+              f"({', '.join(f'{k}={v}' for k, v in sorted(summary.not_recorded.items()))})")
     print(f"replay: {summary.samples} samples -> {summary.estimates} estimates in {summary.seconds:.2f} s "
           f"({summary.samples_per_s:,.0f} samples/s); {args.output}")
     if summary.counters:

@@ -22,7 +22,7 @@ import os
 import sys
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterator, TextIO
 
@@ -58,6 +58,8 @@ class ReplaySummary:
     """Why an MCAP log was not read to its footer (cut short, damaged), or None."""
     skipped: Skipped | None = None
     """What a damaged MCAP log lost (chunks, bytes, messages), or None if nothing was skipped."""
+    not_recorded: dict[str, int] = field(default_factory=dict)
+    """Records the output could not hold, by reason (``McapRecorder.rejected``: a time outside uint64, NaN)."""
 
     @property
     def samples_per_s(self) -> float:
@@ -139,4 +141,4 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     counters = dict(pipeline.loop.counters) | dict(pipeline.loop.model.counters)
     incomplete = None if contents is None or contents.complete else contents.error
     skipped = contents.skipped if contents is not None and contents.skipped else None
-    return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters, incomplete, skipped)
+    return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters, incomplete, skipped, dict(recorder.rejected))

@@ -161,3 +161,26 @@ def test_json_of_the_surviving_records_is_intact(small_log: Path, tmp_path: Path
     bad.write_bytes(damage(small_log.read_bytes(), *spans[5], "length_off"))
     for m in read_log(bad).raw:
         json.loads(m.data)
+
+
+def test_a_tlog_sample_the_output_cannot_hold_is_left_out_and_counted(tmp_path: Path) -> None:
+    """A HIGHRES_IMU with time_usec = 2^63 in a .tlog: the replay's recorder refuses it and keeps everything else."""
+    from pymavlink.dialects.v20 import common as mavlink2
+
+    vehicle, spoofer = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1), mavlink2.MAVLink(None, srcSystem=77, srcComponent=1)
+    tlog = tmp_path / "spoofed.tlog"
+    n, spoof_at = 400, 200
+    with open(tlog, "wb") as f:
+        for k in range(n):
+            t_us = 1_700_000_000_000_000 + k * 10_000
+            packet = vehicle.highres_imu_encode(5_000_000 + k * 10_000, 0, 0, -9.81, 0.01, 0, 0, 0.21, 0, 0.43, 1013, 0, 0, 20, 0x1FF)
+            f.write(t_us.to_bytes(8, "big") + packet.pack(vehicle))
+            if k == spoof_at:
+                bad = spoofer.highres_imu_encode(2**63, 0, 0, -9.81, 0.01, 0, 0, 0.21, 0, 0.43, 1013, 0, 0, 20, 0x1FF)
+                f.write((t_us + 1).to_bytes(8, "big") + bad.pack(spoofer))
+    summary = replay(tlog, tmp_path / "out.mcap", FuserConfig(), progress=None)
+    refused = summary.not_recorded.get("time_out_of_range", 0)
+    assert summary.samples - n == refused in (0, 1)  # refused here, or already by the decoder's own range check
+    with open(tmp_path / "out.mcap", "rb") as f:  # complete: mcap's reader needs the footer
+        imu = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages() if c.topic == "/input/imu"]
+    assert [d["t_ns"] for d in imu] == [(5_000_000 + k * 10_000) * 1000 for k in range(n)]
