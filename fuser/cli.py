@@ -7,105 +7,244 @@
     bingham-fuser report fused.mcap -o report/
     bingham-fuser import trial.hdf5 -o trial.mcap   (BROAD trial, PX4 .ulg or ArduPilot .bin -> MCAP)
 
-Every setting can also come from a TOML file (``--config``); flags win.
+Every fusion setting can also come from a TOML file (``--config``); flags win.
+
+Each subcommand's options are declared in one place (``_add_<command>``),
+built from small option groups (``_fusion_options``, ``_zenoh_publish_options``,
+...) attached only to the subcommands where they act. Options that do nothing
+in the mode chosen are refused; an option that overrides another is warned
+about.
+
+Errors: every expected failure (a missing file, a malformed connection string,
+an unknown CAN interface, a port in use, a bad configuration, a missing
+optional package, a file that is not a log) ends the command with one line on
+stderr that says what to fix, and exit code 2 (bad usage: the command as given
+cannot run) or 1 (it started and failed). ``--verbose`` adds the traceback.
 """
 
 from __future__ import annotations
 
 import argparse
+import ipaddress
 import logging
+import os
+import re
 import signal
 import sys
 import threading
+import traceback
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, NoReturn, Sequence
 
 from drivers.scenarios import SCENARIOS
 from fuser.config import FuserConfig, load_config
 from fuser.outputs import add_options as add_output_options
+from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError
 
 __all__ = ["main"]
 
 log = logging.getLogger("bingham_fuser")
 
+PROG = "bingham-fuser"
+SIM_DURATION_S = 60.0
+"""Length of ``sim --scenario full`` unless ``--duration`` says otherwise."""
+DEFAULT_BAUD = 57600
+DEFAULT_BITRATE = 1_000_000
+CAN_WITHOUT_BITRATE = ("virtual", "socketcan", "udp_multicast")
+"""python-can interfaces that take no bitrate (the bus's is set outside the program)."""
+EXIT_INTERRUPTED = 130
 
-def _common(parser: argparse.ArgumentParser) -> None:
-    g = parser.add_argument_group("common options")
-    g.add_argument("--config", metavar="FILE.toml", help="read settings from a TOML file (flags override it)")
-    g.add_argument("--vehicle", help="vehicle name in the zenoh keys bingham_fuser/<vehicle>/... (default: sim)")
+
+# --------------------------------------------------------------------------- parser
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse, with a usage error as one line (and exit code 2) instead of the usage text.
+
+    Abbreviated options are off: a prefix would be taken for the longer option
+    it starts (``import --config x`` for ``--config-out x``, writing x).
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, allow_abbrev=False, **kwargs)
+
+    def error(self, message: str) -> NoReturn:
+        raise UsageError(f"{message} (see {self.prog} --help)")
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("bingham-fuser")
+    except PackageNotFoundError:  # run from a source tree that was never installed
+        return "unknown (not installed)"
+
+
+def _mavlink_connection(text: str) -> str:
+    """argparse type of ``--mavlink``: a connection string pymavlink opens, checked for its form only."""
+    prefix, _, rest = text.partition(":")
+    if prefix in ("tcp", "tcpin", "udpin", "udpout", "udpbcast", "udp") or re.fullmatch(r"[\w.-]+:\d+", text):
+        host, _, port = (rest if prefix in ("tcp", "tcpin", "udpin", "udpout", "udpbcast", "udp") else text).rpartition(":")
+        if not host or not port.isdigit() or int(port) > 65535:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a network connection: expected {prefix}:HOST:PORT with a port 0-65535, "
+                                             "e.g. udpin:0.0.0.0:14550")
+        if re.fullmatch(r"[\d.]+", host):
+            try:
+                ipaddress.IPv4Address(host)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{text!r}: {host} is not an IPv4 address") from None
+        return text
+    if text.startswith(("mcast:", "uds:", "unix:", "ws:", "wss:", "wsserver:", "/dev/")) or re.fullmatch(r"COM\d+", text, re.I):
+        return text
+    if os.path.exists(text):  # a serial device elsewhere, or a .tlog to read
+        return text
+    raise argparse.ArgumentTypeError(
+        f"{text!r} is not a MAVLink connection: give udpin:HOST:PORT (listen), udpout:HOST:PORT, tcp:HOST:PORT, "
+        "tcpin:HOST:PORT, or a serial device such as /dev/ttyUSB0 or COM3")
+
+
+def _can_bus(text: str) -> str:
+    """argparse type of ``--can`` / ``--send-can``: INTERFACE:CHANNEL with an interface python-can knows."""
+    import can
+
+    interface, _, channel = text.partition(":")
+    if not channel:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected INTERFACE:CHANNEL, e.g. socketcan:can0 or slcan:/dev/ttyACM0")
+    if interface not in can.VALID_INTERFACES:
+        raise argparse.ArgumentTypeError(f"unknown CAN interface {interface!r}: python-can knows {', '.join(sorted(can.VALID_INTERFACES))}")
+    return text
+
+
+def _outage(text: str) -> tuple[float, float]:
+    at, _, seconds = text.partition(":")
+    try:
+        out = float(at), float(seconds)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected AT:SECONDS, e.g. 4:2.5") from None
+    if out[0] < 0 or out[1] <= 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: AT must be >= 0 and SECONDS > 0")
+    return out
+
+
+def _start_at(text: str) -> str:
+    try:
+        float(text[1:] if text.startswith("+") else text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a Unix time or +SECONDS") from None
+    return text
+
+
+def _verbosity(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug); tracebacks of errors")
+
+
+def _config_file(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--config", metavar="FILE.toml", help="read settings from a TOML file (flags override it)")
+
+
+def _fusion_options(p: argparse.ArgumentParser) -> None:
+    """What the fusion loop and model read: sim, run, replay."""
+    g = p.add_argument_group("fusion")
     g.add_argument("--rate", type=float, dest="rate_hz", metavar="HZ", help="estimates per second (default: 100)")
     g.add_argument("--no-mag", action="store_true", help="6-D fusion: ignore magnetometers")
-    g.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
 
 
-def _zenoh(parser: argparse.ArgumentParser) -> None:
-    g = parser.add_argument_group("zenoh")
+def _vehicle_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--vehicle", help="vehicle name in the zenoh keys bingham_fuser/<vehicle>/... (default: sim)")
+
+
+def _zenoh_publish_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("zenoh")
     g.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT", help="listen endpoint (repeatable; default tcp/127.0.0.1:7447)")
     g.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT", help="router or peer to connect to (repeatable)")
     g.add_argument("--no-zenoh", action="store_true", help="do not publish")
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="bingham-fuser",
-        description="Streaming quaternion Bingham-filter attitude fuser: MAVLink / DroneCAN in, zenoh and MCAP out.",
-        epilog="Run 'bingham-fuser COMMAND --help' for a command's options.",
-    )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+def _zenoh_subscribe_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("zenoh")
+    g.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
+                   help="the fuser (or a router) to connect to (repeatable; default: the fuser's listen endpoint, tcp/127.0.0.1:7447)")
+    g.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
+                   help="the fuser's --zenoh-listen endpoint, connected to when --zenoh-connect is not given")
 
+
+def _add_sim(sub: Any) -> None:
     p = sub.add_parser("sim", help="fly the simulated vehicle through the live loop (no drone needed)",
                        description="Fly the built-in simulated multirotor (hover, turns, aggressive manoeuvres, a flip) "
                                    "through the real decoders and the live loop; publish on zenoh, record MCAP with the truth, "
                                    "and print the error against the truth.")
-    _common(p)
-    _zenoh(p)
+    p.set_defaults(handler=_cmd_sim)
+    _verbosity(p)
+    _config_file(p)
+    _fusion_options(p)
+    _vehicle_option(p)
+    _zenoh_publish_options(p)
     add_output_options(p)
-    p.add_argument("--duration", type=float, default=60.0, metavar="S", help="seconds of flight (default: 60)")
     p.add_argument("--scenario", choices=("full",) + tuple(SCENARIOS), default="full",
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
                         + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()).replace("%", "%%"))  # argparse %-formats help
-    p.add_argument("--speed", type=float, default=1.0, metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
-    p.add_argument("--transport", choices=("mavlink", "dronecan"), default="mavlink", help="what the vehicle speaks (default: mavlink)")
+    p.add_argument("--duration", type=float, metavar="S", help=f"seconds of flight with --scenario full (default: {SIM_DURATION_S:g})")
+    p.add_argument("--speed", type=float, metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
+    p.add_argument("--transport", choices=("mavlink", "dronecan"), help="what the vehicle speaks (default: mavlink)")
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default: 0)")
     p.add_argument("--imu-rate", type=float, default=400.0, metavar="HZ", help="IMU rate (default: 400)")
-    p.add_argument("-o", "--record", default="sim.mcap", metavar="FILE.mcap", help="record inputs, truth and estimates here (default: sim.mcap; '' to disable)")
-    g = p.add_argument_group("send to a live fuser", "be the vehicle on the far end of a real link instead of running the loop here")
+    p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs, truth and estimates here (default: sim.mcap; '' to disable)")
+    g = p.add_argument_group("send to a live fuser", "be the vehicle on the far end of a real link instead of running the loop here "
+                             "(the fusion, zenoh and recording options then do not apply)")
     g.add_argument("--send", metavar="CONN", help="send the flight's MAVLink in real time to this pymavlink connection, e.g. udpout:127.0.0.1:14550")
-    g.add_argument("--send-can", metavar="IFACE:CHANNEL", help="send its DroneCAN frames to this python-can bus")
+    g.add_argument("--send-can", type=_can_bus, metavar="IFACE:CHANNEL", help="send its DroneCAN frames to this python-can bus")
     g.add_argument("--truth", metavar="FILE", help="write the true attitude at the sender's times (.npz or .mcap)")
-    g.add_argument("--start-at", metavar="UNIX_TIME|+S", help="send the first sample at this Unix time (keeps several senders in step), "
-                   "or S seconds after the flight is ready (default: +0.2); the time chosen is printed")
-    g.add_argument("--outage", metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
-    g.add_argument("--garbage", type=float, default=0.0, metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
+    g.add_argument("--start-at", type=_start_at, metavar="UNIX_TIME|+S", help="send the first sample at this Unix time (keeps several senders "
+                   "in step), or S seconds after the flight is ready (default: +0.2); the time chosen is printed")
+    g.add_argument("--outage", type=_outage, metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
+    g.add_argument("--garbage", type=float, metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
 
+
+def _add_run(sub: Any) -> None:
     p = sub.add_parser("run", help="fuse live MAVLink and/or DroneCAN input",
                        description="Fuse live input. MAVLink CONN is anything pymavlink opens: udpin:0.0.0.0:14550, "
                                    "tcp:127.0.0.1:5760, /dev/ttyUSB0 (with --baud). CAN is INTERFACE:CHANNEL for python-can: "
                                    "socketcan:can0, slcan:/dev/ttyACM0, virtual:test.")
-    _common(p)
-    _zenoh(p)
+    p.set_defaults(handler=_cmd_run)
+    _verbosity(p)
+    _config_file(p)
+    _fusion_options(p)
+    _vehicle_option(p)
+    _zenoh_publish_options(p)
     add_output_options(p)
-    p.add_argument("--mavlink", action="append", default=[], metavar="CONN", help="MAVLink connection (repeatable)")
-    p.add_argument("--baud", type=int, default=57600, help="serial baud rate for MAVLink (default: 57600)")
-    p.add_argument("--can", action="append", default=[], metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
-    p.add_argument("--bitrate", type=int, default=1_000_000, help="CAN bitrate where the interface needs one (default: 1000000)")
+    g = p.add_argument_group("inputs")
+    g.add_argument("--mavlink", action="append", default=[], type=_mavlink_connection, metavar="CONN", help="MAVLink connection (repeatable)")
+    g.add_argument("--baud", type=int, metavar="BAUD", help=f"serial baud rate of the serial --mavlink connections (default: {DEFAULT_BAUD})")
+    g.add_argument("--can", action="append", default=[], type=_can_bus, metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
+    g.add_argument("--bitrate", type=int, help=f"CAN bitrate for interfaces that set one, e.g. slcan (default: {DEFAULT_BITRATE})")
     p.add_argument("--attitude-sigma", type=float, dest="attitude_sigma_deg", metavar="DEG", help="also fuse the autopilot's attitude with this noise")
     p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs and estimates (in a separate process)")
 
+
+def _add_replay(sub: Any) -> None:
     p = sub.add_parser("replay", help="replay a recorded MCAP or .tlog through the loop, as fast as possible",
                        description="Replay a log (MCAP recorded by bingham-fuser, or a MAVLink .tlog) through the same loop on "
-                                   "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes.")
-    _common(p)
+                                   "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes. A damaged "
+                                   "MCAP replays every chunk that can be read, and says what it skipped.")
+    p.set_defaults(handler=_cmd_replay, vehicle=None)  # no zenoh here: the vehicle name does not apply
+    _verbosity(p)
+    _config_file(p)
+    _fusion_options(p)
     p.add_argument("log", help="input log (.mcap or .tlog)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
 
+
+def _add_import(sub: Any) -> None:
     p = sub.add_parser("import", help="convert a BROAD trial (.hdf5), a PX4 ULog (.ulg) or an ArduPilot DataFlash log (.bin) into a replayable MCAP",
                        description="Encode a real log's IMU, magnetometer and GNSS (and the autopilot's attitude) as MAVLink, decode "
                                    "them with the project's driver and record an MCAP with the truth / reference attitude on /truth/pose. "
                                    "Needs h5py (BROAD) or pyulog (PX4): pip install 'bingham-fuser[import]'. See fuser/importers.py.")
-    _common(p)
+    p.set_defaults(handler=_cmd_import)
+    _verbosity(p)
     p.add_argument("source", help="BROAD trial .hdf5, PX4 .ulg or ArduPilot .bin")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP to write")
     p.add_argument("--format", choices=("broad", "px4", "dataflash"), help="input format (default: from the file extension)")
@@ -114,18 +253,114 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--config-out", metavar="FILE.toml", help="TOML with the measured reference field, for replay --config "
                    "(default: OUT.toml beside the MCAP; '' to skip)")
 
-    p = sub.add_parser("listen", help="print the estimates arriving on zenoh", description="Subscribe to bingham_fuser/<vehicle>/attitude and print each estimate.")
-    _common(p)
-    _zenoh(p)
+
+def _add_listen(sub: Any) -> None:
+    p = sub.add_parser("listen", help="print the estimates arriving on zenoh", description="Subscribe to bingham_fuser/<vehicle>/attitude "
+                       "and print each estimate.")
+    p.set_defaults(handler=_cmd_listen, rate_hz=None, no_mag=False)  # the config's fusion settings do not apply here
+    _verbosity(p)
+    _config_file(p)
+    _vehicle_option(p)
+    _zenoh_subscribe_options(p)
     p.add_argument("--json", action="store_true", help="print the raw JSON payloads")
     p.add_argument("--count", type=int, metavar="N", help="stop after N estimates")
 
+
+def _add_report(sub: Any) -> None:
     p = sub.add_parser("report", help="plots and a summary table of a fused log", description="Write PNG plots (attitude against the truth or the "
                        "autopilot, error, uncertainty) and print a summary table. Needs matplotlib (pip install 'bingham-fuser[report]').")
-    _common(p)
+    p.set_defaults(handler=_cmd_report)
+    _verbosity(p)
     p.add_argument("log", help="an MCAP written by sim, run or replay")
     p.add_argument("-o", "--output", default="report", metavar="DIR", help="folder for the PNGs (default: report)")
+
+
+SUBCOMMANDS: tuple[Callable[[Any], None], ...] = (_add_sim, _add_run, _add_replay, _add_listen, _add_report, _add_import)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog=PROG,
+        description="Streaming quaternion Bingham-filter attitude fuser: MAVLink / DroneCAN in, zenoh and MCAP out.",
+        epilog="Run 'bingham-fuser COMMAND --help' for a command's options. Exit codes: 0 done, 1 failed while running, "
+               "2 bad usage (options, configuration, input files, missing package).",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for add in SUBCOMMANDS:
+        add(sub)
     return parser
+
+
+# --------------------------------------------------------------------------- checks between options
+
+
+def _warn(message: str) -> None:
+    print(f"{PROG}: warning: {message}", file=sys.stderr)
+
+
+def _given(args: argparse.Namespace, options: dict[str, str]) -> list[str]:
+    """The flags among ``options`` (flag -> dest) that were given (not None, not False, not empty)."""
+    return [flag for flag, dest in options.items() if getattr(args, dest, None) not in (None, False, [], "")]
+
+
+def _list(flags: list[str]) -> str:
+    return f"{', '.join(flags)} {'acts' if len(flags) == 1 else 'act'}"
+
+
+def _check_sim(args: argparse.Namespace) -> None:
+    """Refuse the options that would do nothing in the mode chosen; resolve the defaults that depend on it."""
+    if args.send or args.send_can:
+        idle = _given(args, {"--config": "config", "--rate": "rate_hz", "--no-mag": "no_mag", "--vehicle": "vehicle",
+                             "--zenoh-listen": "zenoh_listen", "--zenoh-connect": "zenoh_connect", "--no-zenoh": "no_zenoh",
+                             "--record": "record", "--transport": "transport"})
+        if idle:
+            raise UsageError(f"sim --send: {_list(idle)} on a fuser running here, and --send runs none "
+                             "(the fuser is on the far end of the link): drop them")
+        if args.speed not in (None, 1.0):
+            raise UsageError("sim --send: a live link runs in real time; --speed must be 1")
+    else:
+        idle = _given(args, {"--truth": "truth", "--start-at": "start_at", "--outage": "outage", "--garbage": "garbage"})
+        if idle:
+            raise UsageError(f"sim: {_list(idle)} only with --send or --send-can")
+    if args.scenario != "full" and args.duration is not None:
+        _warn(f"--scenario {args.scenario} is a flight of fixed length: it overrides --duration {args.duration:g} "
+              "(--duration sets the length of --scenario full)")
+    args.duration = SIM_DURATION_S if args.duration is None else args.duration
+    args.speed = 1.0 if args.speed is None else args.speed
+    args.transport = args.transport or "mavlink"
+    args.garbage = args.garbage or 0.0
+    args.record = "sim.mcap" if args.record is None else args.record
+
+
+def _is_serial(conn: str) -> bool:
+    return conn.startswith("/dev/") or bool(re.fullmatch(r"COM\d+", conn, re.I))
+
+
+def _check_run(args: argparse.Namespace) -> None:
+    if not args.mavlink and not args.can:
+        raise UsageError("run: give at least one --mavlink CONN or --can IFACE:CHANNEL")
+    if args.baud is not None and not any(map(_is_serial, args.mavlink)):
+        _warn(f"--baud {args.baud} is ignored: it applies to serial --mavlink connections, and none is given")
+    if args.bitrate is not None and all(spec.partition(":")[0] in CAN_WITHOUT_BITRATE for spec in args.can):
+        _warn(f"--bitrate {args.bitrate} is ignored: {', '.join(CAN_WITHOUT_BITRATE)} buses take none")
+
+
+def _check_listen(args: argparse.Namespace) -> None:
+    if args.zenoh_connect and args.zenoh_listen:
+        _warn("--zenoh-connect overrides --zenoh-listen: the listener connects to the --zenoh-connect endpoints only")
+
+
+def _check_output(path: str, option: str) -> None:
+    """A file can be written at ``path``: its folder exists and is writable."""
+    folder = Path(path).resolve().parent
+    if not folder.is_dir():
+        raise UsageError(f"cannot write {option} {path}: the folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise UsageError(f"cannot write {option} {path}: the folder {folder} is not writable")
+
+
+# --------------------------------------------------------------------------- commands
 
 
 def _config(args: argparse.Namespace) -> FuserConfig:
@@ -140,14 +375,61 @@ def _config(args: argparse.Namespace) -> FuserConfig:
     return load_config(args.config, **overrides)
 
 
+def _load_config(args: argparse.Namespace) -> FuserConfig | None:
+    """The configuration of a command that takes ``--config``, every error in it a one-line usage error."""
+    if not hasattr(args, "config"):
+        return None
+    try:
+        return _config(args)
+    except OSError as e:
+        raise UsageError(f"cannot read --config {args.config}: {e.strerror or e}") from e
+    except (TypeError, ValueError) as e:
+        raise UsageError(f"bad configuration{f' in {args.config}' if args.config else ''}: {e}") from e
+
+
 def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
+    """The zenoh publisher, open, or a one-line error naming the endpoint and what to do instead."""
     if getattr(args, "no_zenoh", False):
         return None
-    from fuser.publish import ZenohPublisher, zenoh_config
+    from fuser.publish import ZenohOpenError, ZenohPublisher, zenoh_config
 
-    pub = ZenohPublisher(zenoh_config(list(config.zenoh_listen), list(config.zenoh_connect)), config.vehicle)
+    try:
+        pub = ZenohPublisher.open(zenoh_config(list(config.zenoh_listen), list(config.zenoh_connect)), config.vehicle)
+    except ZenohOpenError as e:
+        if e.endpoint_in_use:
+            raise FuserError(
+                f"zenoh cannot listen on {e.endpoint_in_use}: the port is in use (another bingham-fuser, or a zenoh router "
+                f"such as ROS 2's rmw_zenoh); listen elsewhere with --zenoh-listen tcp/127.0.0.1:PORT, or connect to that "
+                f"router with --zenoh-connect {e.endpoint_in_use} (or --no-zenoh)") from e
+        endpoints = ", ".join((*config.zenoh_listen, *config.zenoh_connect))
+        hint = ": an endpoint is <protocol>/<address>, e.g. tcp/127.0.0.1:7447" if e.malformed else ""
+        raise type(e)(f"zenoh cannot open a session with endpoints {endpoints}: {e.reason}{hint}", malformed=e.malformed) from e
     stack.callback(pub.close)
     return pub
+
+
+_SOURCE_ERRORS: tuple[type[BaseException], ...] = (OSError, ValueError, OverflowError)
+"""What opening a source raises for a link that is not there (pymavlink, pyserial, sockets); with python-can's
+CanError, and drivers.SourceError once the drivers raise it, added here."""
+
+
+def _reason(exc: BaseException) -> str:
+    text = re.sub(r"\[Errno -?\d+\] ", "", str(exc)) or type(exc).__name__
+    return "connection refused (nothing listens there)" if isinstance(exc, ConnectionRefusedError) else text
+
+
+def _open_source(stack: ExitStack, label: str, factory: Callable[[], Any]) -> Any:
+    """Open a source in ``stack``; a failure is one line naming the source."""
+    import can
+
+    try:
+        return stack.enter_context(factory())
+    except can.CanInterfaceNotImplementedError as e:  # a known interface whose driver or package is missing here
+        raise UsageError(f"cannot open {label}: {_reason(e)}") from e
+    except (*_SOURCE_ERRORS, can.CanError) as e:
+        raise FuserError(f"cannot open {label}: {_reason(e)}") from e
+    except Exception as e:  # noqa: BLE001 - third-party driver code (python-can plugins) may raise anything when its library is absent
+        raise FuserError(f"cannot open {label}: {type(e).__name__}: {e}") from e
 
 
 def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
@@ -156,28 +438,31 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.pipeline import Pipeline
     from fuser.record import McapRecorder, RecorderProcess
     from fuser.simulate import run_sim
+    from fuser.wallclock import WallClock
 
+    _check_sim(args)
     try:
         require_scenario(args.scenario)
     except ImportError as exc:  # an optional dependency of the scenario (jsbsim for fixedwing)
-        print(f"sim: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(f"sim: {exc}") from exc
     if args.send or args.send_can:
         from fuser.sender import run_sender
 
         return run_sender(args, _stop_on_signal())
+    if args.record:
+        _check_output(args.record, "--record")
+    clock = WallClock.start() if args.speed > 0 else None
     with ExitStack() as stack:
         pub = _publisher(stack, config, args)
         rec = None
         if args.record:
             # paced runs record in a separate process, like live ones; a full-speed run
             # would outpace it, so it records in-process and loses nothing
-            recorder = McapRecorder if args.speed <= 0 else RecorderProcess
-            rec = recorder(args.record, metadata={"source": "bingham-fuser sim", "scenario": args.scenario, "seed": str(args.seed)})
+            recorder = McapRecorder if clock is None else RecorderProcess
+            timeline = clock.metadata() if clock is not None else {"time": "the simulated flight's clock (--speed 0)"}
+            rec = recorder(args.record, metadata={"source": "bingham-fuser sim", "scenario": args.scenario, "seed": str(args.seed), **timeline})
             stack.callback(rec.close)
         extra = _extra_outputs(stack, config, args)
-        if extra is None:
-            return 2
         pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
         stop = _stop_on_signal()
         flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
@@ -185,7 +470,7 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         print(f"sim: {args.scenario} flight, {seconds:.0f} s at {'full speed' if args.speed <= 0 else f'{args.speed:g}x'}"
               + (f", publishing on bingham_fuser/{config.vehicle}/attitude" if pub else "")
               + (f", recording {args.record}" if rec else ""), file=sys.stderr)
-        run = run_sim(pipeline, flight, args.transport, args.speed, ([rec.write_truth] if rec else []) + extra.truth, stop)
+        run = run_sim(pipeline, flight, args.transport, args.speed, ([rec.write_truth] if rec else []) + extra.truth, stop, clock=clock)
     print(f"sim: {run.samples} samples -> {run.estimates} estimates in {run.wall_s:.1f} s")
     if args.record:
         _print_scores(args.record)
@@ -199,45 +484,42 @@ def _estimate_sinks(pub: Any, rec: Any) -> list:
 
 
 def _extra_outputs(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
-    """--ros2, --foxglove, --mavlink-out (fuser/outputs.py); None after one line on stderr if a package is missing."""
+    """--ros2, --foxglove, --mavlink-out (fuser/outputs.py); a missing package is a usage error naming its extra."""
     from fuser.outputs import open_outputs
 
     try:
         return open_outputs(stack, config, args)
     except ImportError as exc:
-        print(f"bingham-fuser: {exc}", file=sys.stderr)
-        return None
+        raise UsageError(str(exc)) from exc
 
 
 def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
+    _check_run(args)
+    if args.record:
+        _check_output(args.record, "--record")
     from drivers.sources import DroneCanSource, MavlinkSource
     from fuser.live import LiveRunner
     from fuser.pipeline import Pipeline
     from fuser.record import RecorderProcess
+    from fuser.wallclock import WallClock
 
-    if not args.mavlink and not args.can:
-        print("run: give at least one --mavlink CONN or --can IFACE:CHANNEL", file=sys.stderr)
-        return 2
     with ExitStack() as stack:
         sources: dict[str, Any] = {}
         for conn in args.mavlink:
-            options = {"baud": args.baud} if conn.startswith("/dev/") or conn.upper().startswith("COM") else {}
-            sources[f"mavlink:{conn}"] = stack.enter_context(MavlinkSource(conn, **options))
+            options = {"baud": args.baud or DEFAULT_BAUD} if _is_serial(conn) else {}
+            sources[f"mavlink:{conn}"] = _open_source(stack, f"MAVLink {conn}", partial(MavlinkSource, conn, **options))
         for spec in args.can:
             interface, _, channel = spec.partition(":")
-            if not channel:
-                print(f"run: --can wants INTERFACE:CHANNEL, got {spec!r}", file=sys.stderr)
-                return 2
-            extra = {} if interface in ("virtual", "socketcan") else {"bitrate": args.bitrate}
-            sources[f"can:{spec}"] = stack.enter_context(DroneCanSource(interface=interface, channel=channel, **extra))
+            extra = {} if interface in CAN_WITHOUT_BITRATE else {"bitrate": args.bitrate or DEFAULT_BITRATE}
+            sources[f"can:{spec}"] = _open_source(stack, f"CAN bus {spec}",
+                                                  partial(DroneCanSource, interface=interface, channel=channel, **extra))
         pub = _publisher(stack, config, args)
+        clock = WallClock.start()
         rec = None
         if args.record:
-            rec = RecorderProcess(args.record, metadata={"source": "bingham-fuser run"})
+            rec = RecorderProcess(args.record, metadata={"source": "bingham-fuser run", **clock.metadata()})
             stack.callback(rec.close)
         extra = _extra_outputs(stack, config, args)
-        if extra is None:
-            return 2
         pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
         status_sinks = [s for s in (rec.write_status if rec else None, (lambda t, d: pub.publish_status(d)) if pub else None) if s]
         status_sinks += extra.status
@@ -245,14 +527,14 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
         def health() -> dict:
             out: dict[str, Any] = {}
             if rec is not None:
-                out["recorder"] = {"alive": rec.alive, "dropped": rec.dropped}
+                out["recorder"] = {"alive": rec.alive, "dropped": rec.dropped, "rejected": rec.rejected}
             if pub is not None:
                 out["publisher"] = {"errors": pub.errors, "subscribed": pub.has_subscribers}
             return out | extra.health_status()
 
-        runner = LiveRunner(pipeline, sources, status_sinks, health)
+        runner = LiveRunner(pipeline, sources, status_sinks, health, clock)
         _stop_on_signal(runner.stop)
-        print(f"run: fusing {', '.join(sources)} at {config.rate_hz:g} Hz; Ctrl-C to stop", file=sys.stderr)
+        print(f"run: fusing {', '.join(sources)} at {config.rate_hz:g} Hz; Ctrl-C to stop", file=sys.stderr, flush=True)
         status = runner.run(args.duration)
     print(f"run: {status['estimates']} estimates; loop {status['loop']}; latency {status['latency']}")
     return 0
@@ -261,7 +543,15 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
 def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.replay import replay
 
+    _check_output(args.output, "--output")
     summary = replay(args.log, args.output, config)
+    if summary.skipped:
+        _warn(f"{args.log} is damaged: skipped {summary.skipped.describe()}; replayed the rest")
+    elif summary.incomplete:
+        _warn(f"{args.log} is incomplete ({summary.incomplete}): replayed its complete chunks")
+    if summary.not_recorded:
+        _warn(f"{sum(summary.not_recorded.values())} records could not be stored in {args.output} and were left out "
+              f"({', '.join(f'{k}={v}' for k, v in sorted(summary.not_recorded.items()))})")
     print(f"replay: {summary.samples} samples -> {summary.estimates} estimates in {summary.seconds:.2f} s "
           f"({summary.samples_per_s:,.0f} samples/s); {args.output}")
     if summary.counters:
@@ -270,28 +560,35 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     return 0
 
 
-def _cmd_import(args: argparse.Namespace, config: FuserConfig) -> int:  # noqa: ARG001
-    from fuser.importers import detect_format, import_log
+def _needs(module: str, extra: str, what: str) -> None:
+    from importlib.util import find_spec
 
+    if find_spec(module) is None:
+        raise UsageError(f"{what} needs the '{module}' package: pip install 'bingham-fuser[{extra}]' (or pip install {module})")
+
+
+def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
+    from fuser.errors import NotALogError
+    from fuser.dataflash import read_dataflash
+    from fuser.importers import detect_format, read_broad, read_px4, write_mcap
+
+    if not Path(args.source).is_file():
+        raise UsageError(f"import: no such file: {args.source}")
     try:
         fmt = args.format or detect_format(args.source)
     except ValueError as exc:
-        print(f"import: {exc}", file=sys.stderr)
-        return 2
+        raise UsageError(f"import: {exc}") from exc
     module = {"broad": "h5py", "px4": "pyulog"}.get(fmt)  # DataFlash: pymavlink, a core dependency
-    try:
-        if module:
-            __import__(module)
-    except ImportError:
-        print(f"import: reading {fmt} logs needs the '{module}' package: pip install 'bingham-fuser[import]' "
-              f"(or pip install {module})", file=sys.stderr)
-        return 2
+    if module:
+        _needs(module, "import", f"reading {fmt} logs")
+    _check_output(args.output, "--output")
     cfg_out = str(Path(args.output).with_suffix(".toml")) if args.config_out is None else (args.config_out or None)
+    reader = {"broad": read_broad, "px4": read_px4, "dataflash": read_dataflash}[fmt]
     try:
-        s = import_log(args.source, args.output, fmt, args.start, args.duration, cfg_out)
-    except (OSError, ValueError) as exc:
-        print(f"import: {exc}", file=sys.stderr)
-        return 2
+        data = reader(args.source, args.start, args.duration)
+    except Exception as e:  # noqa: BLE001 - h5py, pyulog and DFReader raise anything on a file that is not theirs
+        raise NotALogError(f"cannot read {args.source} as a {fmt} log: {type(e).__name__}: {e}") from e
+    s = write_mcap(data, args.output, cfg_out, progress=sys.stderr)
     print(f"import: {s.imu} IMU + {s.attitude} attitude + {s.gnss} GNSS messages through MAVLink, {s.truth} reference attitudes -> {s.path}")
     if s.skipped:
         print(f"not imported: {s.skipped}")
@@ -305,18 +602,17 @@ def _cmd_import(args: argparse.Namespace, config: FuserConfig) -> int:  # noqa: 
 def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.publish import listen, zenoh_config
 
+    _check_listen(args)
     # a listener connects to the fuser's endpoint unless told otherwise
     connect = list(config.zenoh_connect) or list(config.zenoh_listen)
     listen(zenoh_config(listen=[], connect=connect), config.vehicle, json_output=args.json, count=args.count)
     return 0
 
 
-def _cmd_report(args: argparse.Namespace, config: FuserConfig) -> int:
-    try:
-        from fuser.report import write_report
-    except ImportError as exc:
-        print(f"report needs matplotlib: pip install 'bingham-fuser[report]' ({exc})", file=sys.stderr)
-        return 2
+def _cmd_report(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
+    _needs("matplotlib", "report", "report")
+    from fuser.report import write_report
+
     for line in write_report(args.log, Path(args.output)):
         print(line)
     return 0
@@ -344,17 +640,44 @@ def _stop_on_signal(callback=None):
     return lambda: stopped["flag"]
 
 
+# --------------------------------------------------------------------------- errors
+
+
+def _explain(exc: BaseException) -> tuple[int, str]:
+    """Exit code and the one line for an exception that ended a command."""
+    if isinstance(exc, FuserError):
+        return exc.exit_code, str(exc)
+    if isinstance(exc, (FileNotFoundError, IsADirectoryError, NotADirectoryError, PermissionError)):
+        return EXIT_USAGE, f"{exc.strerror or exc}: {exc.filename}" if exc.filename else str(exc)
+    if isinstance(exc, OSError):
+        return EXIT_RUNTIME, f"{exc.strerror or exc}" + (f": {exc.filename}" if exc.filename else "")
+    if isinstance(exc, ModuleNotFoundError) and exc.name:
+        return EXIT_USAGE, f"a package this needs is not installed: {exc.name} (pip install {exc.name.split('.')[0]})"
+    return EXIT_RUNTIME, (f"internal error: {type(exc).__name__}: {exc} "
+                          "(run again with --verbose for the traceback, and please report it)")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
-    logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(args.verbose, 2)], format="%(levelname)s %(name)s: %(message)s")
+    """Run one command; returns the exit code (0 done, 1 failed while running, 2 bad usage)."""
+    verbose = 0
     try:
-        config = _config(args)
-    except (OSError, ValueError) as exc:
-        print(f"bingham-fuser: {exc}", file=sys.stderr)
-        return 2
-    commands = {"sim": _cmd_sim, "run": _cmd_run, "replay": _cmd_replay, "listen": _cmd_listen, "report": _cmd_report,
-                "import": _cmd_import}
-    return commands[args.command](args, config)
+        args, extra = _parser().parse_known_args(argv)
+        if extra:
+            raise UsageError(f"{args.command} does not take {' '.join(extra)} (see {PROG} {args.command} --help)")
+        verbose = args.verbose
+        logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)],
+                            format="%(levelname)s %(name)s: %(message)s")
+        config = _load_config(args)
+        return args.handler(args, config)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # noqa: BLE001 - the one place every failure becomes one line and an exit code
+        code, line = _explain(exc)
+        if verbose:
+            traceback.print_exc()
+        print(f"{PROG}: {line}", file=sys.stderr)
+        return code
 
 
 if __name__ == "__main__":

@@ -48,17 +48,38 @@ def _yaw(q: NDArray) -> NDArray:
     return np.arctan2(forward[..., 1], forward[..., 0])
 
 
+def _usable_reference(ref_t: NDArray, q_ref: NDArray) -> tuple[NDArray, NDArray]:
+    """The reference sorted by time, the first sample of each time, finite non-zero quaternions only."""
+    norm = np.linalg.norm(q_ref, axis=-1) if q_ref.size else np.zeros(0)
+    ok = np.isfinite(norm) & (norm > 0)
+    ref_t, q_ref = ref_t[ok], q_ref[ok]
+    order = np.argsort(ref_t, kind="stable")
+    ref_t, q_ref = ref_t[order], q_ref[order]
+    first = np.concatenate(([True], np.diff(ref_t) > 0)) if ref_t.size else np.zeros(0, dtype=bool)
+    return ref_t[first], q_ref[first]
+
+
 def attitude_errors(
     t_ns: NDArray, q_est: NDArray, uncertainty_deg: NDArray, ref_t_ns: NDArray, q_ref: NDArray
 ) -> AttitudeErrors:
-    """Compare estimates (w, x, y, z) with a reference sampled at ``ref_t_ns``."""
+    """Compare estimates (w, x, y, z) with a reference sampled at ``ref_t_ns``.
+
+    The reference is used in time order whatever order it comes in (a log's
+    attitude messages are in receive order; a sender's clock can step back),
+    with one sample per time (the first) and without unusable quaternions
+    (zero or not finite); with fewer than two left, no estimate is scored.
+    """
     t_ns = np.asarray(t_ns, dtype=np.int64)
-    ref_t = np.asarray(ref_t_ns, dtype=np.int64)
+    ref_t, q_ref = _usable_reference(np.asarray(ref_t_ns, dtype=np.int64), np.asarray(q_ref, dtype=float))
+    if ref_t.size < 2:
+        inside = np.zeros(t_ns.shape, dtype=bool)
+        empty = np.zeros(0)
+        return AttitudeErrors(t_ns[inside], empty, empty, empty, empty)
     inside = (t_ns >= ref_t[0]) & (t_ns <= ref_t[-1])
     t_ns = t_ns[inside]
     q_est = np.asarray(q_est, dtype=float)[inside]
     t0 = ref_t[0]
-    slerp = Slerp((ref_t - t0) * 1e-9, Rotation.from_quat(np.asarray(q_ref, dtype=float)[:, [1, 2, 3, 0]]))
+    slerp = Slerp((ref_t - t0) * 1e-9, Rotation.from_quat(q_ref[:, [1, 2, 3, 0]]))
     q_r = slerp((t_ns - t0) * 1e-9).as_quat()[:, [3, 0, 1, 2]]
     down = np.array([0.0, 0.0, 1.0])
     d_est = quat.rotate(quat.conjugate(q_est), down)

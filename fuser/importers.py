@@ -92,6 +92,8 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Iterator, TextIO
+
 import numpy as np
 
 from core import earth_field
@@ -389,8 +391,12 @@ def _sample(data: SensorData, kind: int, stream: int, i: int, t_ns: int) -> tupl
     return data.gnss[i], GNSS_MESSAGE
 
 
-def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None = None) -> ImportSummary:
-    """Encode ``data`` as MAVLink bytes, decode them with the project's driver, record MCAP (+ reference)."""
+def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None = None, progress: TextIO | None = None) -> ImportSummary:
+    """Encode ``data`` as MAVLink bytes, decode them with the project's driver, record MCAP (+ reference).
+
+    ``progress``: where to draw a progress bar (only if it is a terminal).
+    """
+    from fuser.progress import progress_bar
     from fuser.record import McapRecorder
 
     out = Path(out)
@@ -410,7 +416,8 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     counts = {ImuSample: 0, AttitudeSample: 0, GnssSample: 0}
     truth = 0
     with McapRecorder(out, metadata=metadata) as rec:
-        for t_ns, kind, stream, i in _events(data):
+        events = _events(data)
+        for t_ns, kind, stream, i in progress_bar(events, len(events), "import", " messages", progress):
             sample, message = _sample(data, kind, stream, i, t_ns)
             for decoded in decoder.feed(encoder.encode(sample, message)):  # type: ignore[arg-type]
                 rec.write_sample(decoded, decoded.t_ns + LINK_LATENCY_NS)
@@ -451,10 +458,11 @@ def import_log(
     start_s: float = 0.0,
     duration_s: float | None = None,
     config_path: str | Path | None = None,
+    progress: TextIO | None = None,
 ) -> ImportSummary:
     """Read a BROAD trial, PX4 ULog or ArduPilot DataFlash log and write the MCAP ``out`` (and the TOML ``config_path``)."""
     from fuser.dataflash import read_dataflash
 
     fmt = fmt or detect_format(path)
     reader = {"broad": read_broad, "px4": read_px4, "dataflash": read_dataflash}[fmt]
-    return write_mcap(reader(path, start_s, duration_s), out, config_path)
+    return write_mcap(reader(path, start_s, duration_s), out, config_path, progress)

@@ -1,8 +1,10 @@
 """Live operation: sources in threads, the loop paced by the wall clock, status once a second.
 
-Each source is polled in its own thread, which stamps every sample with
-``time.monotonic_ns()`` as it arrives; the main thread feeds them to the
-:class:`~fuser.pipeline.Pipeline` and runs each tick at its due time. A tick
+Each source is polled in its own thread, which stamps every sample with the
+:class:`~fuser.wallclock.WallClock` (the monotonic clock on the Unix epoch) as
+it arrives; the main thread feeds them to the
+:class:`~fuser.pipeline.Pipeline` and runs each tick at its due time, so
+ticks, estimates and status are all in Unix nanoseconds. A tick
 that finishes after the next one is due is counted as an overrun (it is
 still published: nothing is dropped). Publish latency is measured from a
 tick's due time to the moment its estimate has been handed to zenoh.
@@ -14,7 +16,6 @@ import gc
 import logging
 import queue
 import threading
-import time
 from collections import Counter, deque
 from typing import Callable, Iterable
 
@@ -25,6 +26,7 @@ from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
 from fuser.model import FusionModel
 from fuser.pipeline import Pipeline
+from fuser.wallclock import WallClock
 
 __all__ = ["LiveRunner"]
 
@@ -42,9 +44,10 @@ a blocking wait wakes 0.1-0.3 ms late (timer slack, scheduling), polling wakes o
 class _SourceThread(threading.Thread):
     """Polls one source until stopped; a failing poll is counted, logged and retried; silences are counted as stalls."""
 
-    def __init__(self, name: str, source: SampleSource, out: queue.Queue, stop: threading.Event) -> None:
+    def __init__(self, name: str, source: SampleSource, out: queue.Queue, stop: threading.Event, clock: WallClock) -> None:
         super().__init__(name=f"source-{name}", daemon=True)
         self.label = name
+        self.clock = clock
         self.source = source
         self.out = out
         self.stop = stop
@@ -67,7 +70,7 @@ class _SourceThread(threading.Thread):
                     log.warning("source %s failed to poll (%d times): %s", self.label, self.errors, exc)
                 self.stop.wait(0.1)
                 continue
-            now = time.monotonic_ns()
+            now = self.clock.now_ns()
             if samples:
                 self.last_sample_ns, self._stalled = now, False
             elif not self._stalled and self.last_sample_ns is not None and now - self.last_sample_ns > STALL_NS:
@@ -90,7 +93,7 @@ def _warm_up(pipeline: Pipeline) -> None:
 
 
 class LiveRunner:
-    """Runs a pipeline on live sources until ``stop()`` or ``duration_s``."""
+    """Runs a pipeline on live sources until ``stop()`` or ``duration_s``, on ``clock`` (default: measured now)."""
 
     def __init__(
         self,
@@ -98,8 +101,10 @@ class LiveRunner:
         sources: dict[str, SampleSource],
         status_sinks: Iterable[Callable[[int, dict], None]] = (),
         health: Callable[[], dict] = dict,
+        clock: WallClock | None = None,
     ) -> None:
         self.pipeline = pipeline
+        self.clock = WallClock.start() if clock is None else clock
         self.sources = sources
         self.status_sinks = list(status_sinks)
         self.health = health
@@ -107,7 +112,7 @@ class LiveRunner:
         self.counters: Counter[str] = Counter()
         self.latencies_ns: deque[int] = deque(maxlen=10_000)
         self._queue: queue.Queue[tuple[Sample, int]] = queue.Queue()
-        self._threads = [_SourceThread(n, s, self._queue, self.stop_event) for n, s in sources.items()]
+        self._threads = [_SourceThread(n, s, self._queue, self.stop_event, self.clock) for n, s in sources.items()]
         pipeline.outputs.append(self._measure)
 
     def stop(self) -> None:
@@ -115,7 +120,7 @@ class LiveRunner:
 
     def _measure(self, est: Estimate) -> None:
         """Last sink of every estimate: latency from due time, overrun if the next tick is already due."""
-        now = time.monotonic_ns()
+        now = self.clock.now_ns()
         loop = self.pipeline.loop
         self.latencies_ns.append(now - (est.t_ns + loop.latency_ns))
         if now > est.t_ns + loop.period_ns + loop.latency_ns:
@@ -123,7 +128,7 @@ class LiveRunner:
 
     def status(self) -> dict:
         """Health and counters, as published on ``.../status`` and recorded on ``/status``."""
-        now = time.monotonic_ns()
+        now = self.clock.now_ns()
         lat = np.array(self.latencies_ns, dtype=float) / 1e6
         latency = {} if lat.size == 0 else {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max())}
         return {
@@ -153,16 +158,16 @@ class LiveRunner:
         gc.freeze()  # start-up built ~170k long-lived objects (modules, kernels): a full collection over them takes ~80 ms
         for t in self._threads:
             t.start()
-        start = time.monotonic_ns()
+        start = self.clock.now_ns()
         next_status = start + 1_000_000_000
         try:
             while not self.stop_event.is_set():
-                now = time.monotonic_ns()
+                now = self.clock.now_ns()
                 if duration_s is not None and now - start >= duration_s * 1e9:
                     break
                 due = self.pipeline.loop.next_due_ns
                 self._feed_waiting(50_000_000 if due is None else min(due - SPIN_NS - now, 50_000_000))
-                now = time.monotonic_ns()
+                now = self.clock.now_ns()
                 self.pipeline.advance(now)
                 if now >= next_status:
                     next_status += 1_000_000_000

@@ -1,9 +1,13 @@
 """zenoh publishing of estimates and status, and the matching subscriber side.
 
 Keys: ``bingham_fuser/<vehicle>/attitude`` (one :class:`~fuser.codec.Estimate`
-as JSON per tick) and ``bingham_fuser/<vehicle>/status`` (a JSON dict). The
-publisher never raises: a zenoh failure is logged once and counted, and the
-fusion loop goes on. See ``fuser/IO.md`` for the payloads and endpoints.
+as JSON per tick) and ``bingham_fuser/<vehicle>/status`` (a JSON dict). Once
+open, the publisher never raises: a zenoh failure is logged once and counted,
+and the fusion loop goes on. Opening is where a mistake shows:
+:meth:`ZenohPublisher.open` raises :class:`ZenohOpenError` (a listen port in
+use, a malformed endpoint), so that a command fails at start with one clear
+line instead of running without output. See ``fuser/IO.md`` for the payloads
+and endpoints.
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ from __future__ import annotations
 import json
 import logging
 import queue
+import re
 import sys
 from collections.abc import Callable
 from typing import Any, TextIO
@@ -18,14 +23,17 @@ from typing import Any, TextIO
 import zenoh
 
 from .codec import Estimate, dumps
+from .errors import EXIT_USAGE, FuserError
 
 __all__ = [
     "DEFAULT_ENDPOINT",
     "Subscription",
+    "ZenohOpenError",
     "ZenohPublisher",
     "format_estimate",
     "key",
     "listen",
+    "open_session",
     "subscribe",
     "zenoh_config",
 ]
@@ -40,11 +48,37 @@ def key(vehicle: str, leaf: str) -> str:
     return f"bingham_fuser/{vehicle}/{leaf}"
 
 
+class ZenohOpenError(FuserError):
+    """A zenoh session could not be opened.
+
+    ``endpoint_in_use`` is the listen endpoint that another process holds (a
+    second fuser, or a zenoh router such as ROS 2's rmw_zenoh on 7447), if
+    that was the reason; ``malformed`` is True when an endpoint could not be
+    parsed (a usage error).
+    """
+
+    def __init__(self, reason: str, endpoint_in_use: str | None = None, malformed: bool = False) -> None:
+        super().__init__(reason)
+        self.reason = reason
+        self.endpoint_in_use = endpoint_in_use
+        self.malformed = malformed
+        if malformed:
+            self.exit_code = EXIT_USAGE
+
+    @classmethod
+    def from_zerror(cls, error: zenoh.ZError) -> ZenohOpenError:
+        reason = re.sub(r" at /\S+\.rs:\d+\.?", "", str(error))  # zenoh appends its Rust source location
+        in_use = re.search(r"bound to (\S+?): .*(?:in use|os error 98)", reason)
+        malformed = bool(re.search(r"must be of the form|invalid socket address|invalid port", reason))
+        return cls(reason, in_use.group(1) if in_use else None, malformed)
+
+
 def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = None) -> zenoh.Config:
     """A peer configuration with explicit endpoints and multicast/gossip scouting off.
 
     With neither argument the peer listens on ``tcp/127.0.0.1:7447``; with only
-    ``connect`` it listens nowhere (it dials out, e.g. to a router).
+    ``connect`` it listens nowhere (it dials out, e.g. to a router). A
+    malformed endpoint raises :class:`ZenohOpenError`.
     """
     if listen is None:
         listen = [] if connect else [DEFAULT_ENDPOINT]
@@ -54,7 +88,18 @@ def zenoh_config(listen: list[str] | None = None, connect: list[str] | None = No
         "connect": {"endpoints": list(connect or [])},
         "scouting": {"multicast": {"enabled": False}, "gossip": {"enabled": False}},
     }
-    return zenoh.Config.from_json5(json.dumps(conf))
+    try:
+        return zenoh.Config.from_json5(json.dumps(conf))
+    except zenoh.ZError as e:
+        raise ZenohOpenError.from_zerror(e) from e
+
+
+def open_session(config: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open``, raising :class:`ZenohOpenError` with the reason (and the endpoint in use, if that was it)."""
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as e:
+        raise ZenohOpenError.from_zerror(e) from e
 
 
 class ZenohPublisher:
@@ -64,7 +109,8 @@ class ZenohPublisher:
     loses samples rather than stalling the loop, and nothing waits for a batch.
     """
 
-    def __init__(self, config: zenoh.Config, vehicle: str) -> None:
+    def __init__(self, config: zenoh.Config, vehicle: str, session: zenoh.Session | None = None) -> None:
+        """Open a session on ``config`` (or use ``session``); a session that cannot open is logged and counted."""
         self.vehicle = vehicle
         self.published = 0
         self.errors = 0
@@ -74,11 +120,16 @@ class ZenohPublisher:
         self._attitude: zenoh.Publisher | None = None
         self._status: zenoh.Publisher | None = None
         try:
-            self._session = zenoh.open(config)
+            self._session = zenoh.open(config) if session is None else session
             self._attitude = self._declare(self._session, "attitude")
             self._status = self._declare(self._session, "status")
         except zenoh.ZError as e:
             self._fail(f"cannot open the zenoh session, nothing will be published: {e}")
+
+    @classmethod
+    def open(cls, config: zenoh.Config, vehicle: str) -> ZenohPublisher:
+        """A publisher whose session is open: raises :class:`ZenohOpenError` instead of publishing nothing."""
+        return cls(config, vehicle, open_session(config))
 
     def _declare(self, session: zenoh.Session, leaf: str) -> zenoh.Publisher:
         return session.declare_publisher(
@@ -94,7 +145,9 @@ class ZenohPublisher:
             self.error = message
             log.error("zenoh: %s", message)
 
-    def _put(self, publisher: zenoh.Publisher | None, payload: bytes) -> None:
+    def _put(self, publisher: zenoh.Publisher | None, payload: bytes | None) -> None:
+        if payload is None:
+            return
         if publisher is None:
             self.errors += 1
             return
@@ -113,10 +166,17 @@ class ZenohPublisher:
             return False
 
     def publish_estimate(self, est: Estimate) -> None:
-        self._put(self._attitude, est.to_json())
+        self._put(self._attitude, self._encode(est.to_dict()))
 
     def publish_status(self, status: dict[str, Any]) -> None:
-        self._put(self._status, dumps(status))
+        self._put(self._status, self._encode(status))
+
+    def _encode(self, payload: Any) -> bytes | None:
+        try:
+            return dumps(payload)
+        except (TypeError, ValueError) as e:  # NaN or infinity: JSON has no form for them
+            self._fail(f"cannot encode a payload as JSON: {e}")
+            return None
 
     def close(self) -> None:
         if self._session is not None:
@@ -132,7 +192,7 @@ class Subscription:
     """Callbacks on raw payloads of ``bingham_fuser/<vehicle>/<leaf>``; ``close()`` to stop."""
 
     def __init__(self, config: zenoh.Config, vehicle: str, handlers: dict[str, Callable[[bytes], None]]) -> None:
-        self._session = zenoh.open(config)
+        self._session = open_session(config)
         self._subscribers = [
             self._session.declare_subscriber(key(vehicle, leaf), _on_payload(handler)) for leaf, handler in handlers.items()
         ]

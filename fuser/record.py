@@ -17,32 +17,30 @@ import multiprocessing as mp
 import os
 import queue
 import signal
-import struct
+from collections import Counter
 from dataclasses import dataclass, field
 from functools import cached_property
-from io import BytesIO
-from operator import itemgetter
+from operator import index, itemgetter
 from pathlib import Path
 from types import TracebackType
-from typing import Any, BinaryIO, Iterable, NamedTuple
+from typing import Any, BinaryIO, Iterable
 
-from mcap.data_stream import ReadDataStream
-from mcap.opcode import Opcode
-from mcap.records import Channel, Chunk, McapRecord, Message, Metadata
-from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, Writer
 
 from drivers.samples import Quat, Sample
 
 from .codec import Estimate, decode_sample, dumps, encode_sample, sample_channel
 from .frames import BODY_FRAME, TRUTH_OFFSET_NED_M, body_transforms
+from .mcap_scan import NotAnMcapError, RawMessage, Skipped, scan_mcap
 
-__all__ = ["CHANNELS", "LogContents", "McapRecorder", "RawMessage", "RecorderProcess", "frame_transforms", "pose_in_frame",
-           "read_log"]
+__all__ = ["CHANNELS", "LogContents", "McapRecorder", "NotAnMcapError", "RawMessage", "RecorderProcess", "frame_transforms",
+           "pose_in_frame", "read_log"]
 
 log = logging.getLogger(__name__)
 
 FRAME_ID = "ned"
+U64_MAX = (1 << 64) - 1
+"""MCAP stores log and publish times as uint64 nanoseconds."""
 INPUT_TOPICS = ("/input/imu", "/input/mag", "/input/attitude", "/input/gnss")
 
 _NUM = {"type": "number"}
@@ -225,7 +223,12 @@ class McapRecorder:
     """Write inputs, estimates, truth and status to an MCAP file (zstd chunks, JSON messages).
 
     ``records_on_disk`` counts the messages already in complete chunks written
-    to the file, i.e. what survives if the process is killed now.
+    to the file, i.e. what survives if the process is killed now. A record the
+    file cannot hold (a time outside uint64, a value JSON cannot encode such as
+    NaN) is checked for before it reaches the writer, so it cannot leave half a
+    record in a chunk: it is not written, it is counted in ``rejected`` by
+    reason, the first one is logged, and recording goes on. So is a write the
+    writer fails (``write_failed``).
     """
 
     def __init__(self, path: str | Path, chunk_size: int = 64 * 1024, metadata: dict[str, str] | None = None) -> None:
@@ -248,44 +251,98 @@ class McapRecorder:
         self._file.flush()
         self._output.wrote = False
         self.records_on_disk = 0
+        self.rejected: Counter[str] = Counter()
+        """Records not written, by reason: ``time_out_of_range``, ``not_json``, ``write_failed``."""
         self.closed = False
 
-    def write_message(self, topic: str, log_time: int, publish_time: int, data: bytes) -> None:
-        """One message already encoded as JSON (e.g. copied unchanged from another log)."""
-        seq = self._sequence[topic] = self._sequence[topic] + 1
-        self._writer.add_message(self._channels[topic], log_time, data, publish_time, seq)
+    @property
+    def rejected_total(self) -> int:
+        return sum(self.rejected.values())
+
+    def _reject(self, topic: str, reason: str, detail: str) -> None:
+        self.rejected[reason] += 1
+        if self.rejected_total == 1:
+            log.warning("recorder: a %s record was not written (%s); recording goes on, further ones are only counted "
+                        "(recorder.rejected)", topic, detail)
+
+    def write_message(self, topic: str, log_time: int, publish_time: int, data: bytes) -> bool:
+        """One message already encoded as JSON (e.g. copied unchanged from another log); False if rejected."""
+        try:
+            times = index(log_time), index(publish_time)
+        except TypeError:
+            self._reject(topic, "time_out_of_range", f"times {log_time!r}, {publish_time!r} are not integers")
+            return False
+        if not (0 <= times[0] <= U64_MAX and 0 <= times[1] <= U64_MAX):
+            self._reject(topic, "time_out_of_range", f"log time {times[0]} or publish time {times[1]} ns outside uint64")
+            return False
+        seq = self._sequence[topic] + 1
+        try:
+            self._writer.add_message(self._channels[topic], times[0], data, times[1], seq)
+        except Exception as e:  # noqa: BLE001 - a disk or writer failure costs this record, not the recording
+            self._reject(topic, "write_failed", f"{type(e).__name__}: {e}")
+            return False
+        self._sequence[topic] = seq
         self._count += 1
         if self._output.wrote:  # the chunk just closed goes to the OS at once
             self._output.wrote = False
             self._file.flush()
             self.records_on_disk = self._count
+        return True
+
+    def _encode(self, topic: str, payload: Any) -> bytes | None:
+        try:
+            return dumps(payload)
+        except (TypeError, ValueError) as e:  # NaN or infinity (allow_nan=False), or a value JSON has no form for
+            self._reject(topic, "not_json", str(e))
+            return None
 
     def write_sample(self, sample: Sample, receive_ns: int) -> None:
         """An input sample; log time = receive time, publish time = the sender's time."""
-        self.write_message(sample_channel(sample), receive_ns, sample.t_ns, dumps(encode_sample(sample, receive_ns)))
+        topic = sample_channel(sample)
+        data = self._encode(topic, encode_sample(sample, receive_ns))
+        if data is not None:
+            self.write_message(topic, receive_ns, sample.t_ns, data)
 
     def write_estimate(self, est: Estimate) -> None:
         """An estimate on ``/estimate`` (full), ``/pose`` and ``/tf`` (Foxglove), at its tick time."""
-        self.write_message("/estimate", est.t_ns, est.t_ns, est.to_json())
-        self.write_message("/pose", est.t_ns, est.t_ns, dumps(pose_in_frame(est.t_ns, est.q_wxyz)))
-        self.write_message("/tf", est.t_ns, est.t_ns, dumps(frame_transforms(est.t_ns, BODY_FRAME, est.q_wxyz)))
+        full = self._encode("/estimate", est.to_dict())
+        pose = self._encode("/pose", pose_in_frame(est.t_ns, est.q_wxyz))
+        tf = self._encode("/tf", frame_transforms(est.t_ns, BODY_FRAME, est.q_wxyz))
+        if full is not None and pose is not None and tf is not None:
+            self.write_message("/estimate", est.t_ns, est.t_ns, full)
+            self.write_message("/pose", est.t_ns, est.t_ns, pose)
+            self.write_message("/tf", est.t_ns, est.t_ns, tf)
 
-    def write_truth(self, t_ns: int, q_wxyz: Quat) -> None:
-        """The true attitude (simulator, imported logs) on ``/truth/pose``, and its own body frame on ``/tf``."""
-        self.write_message("/truth/pose", t_ns, t_ns, dumps(pose_in_frame(t_ns, q_wxyz, TRUTH_OFFSET_NED_M)))
-        self.write_message("/tf", t_ns, t_ns, dumps(frame_transforms(t_ns, TRUTH_FRAME, q_wxyz, TRUTH_OFFSET_NED_M)))
+    def write_truth(self, t_ns: int, q_wxyz: Quat, log_time_ns: int | None = None) -> None:
+        """The true attitude (simulator, imported logs) on ``/truth/pose``, and its own body frame on ``/tf``.
+
+        ``t_ns`` is the instant on the vehicle's clock (the publish time, what
+        scoring compares ``sensor_t_ns`` with); ``log_time_ns`` the same instant
+        on the recording's timeline (the log time and the pose's timestamp),
+        by default ``t_ns``.
+        """
+        log_time = t_ns if log_time_ns is None else log_time_ns
+        pose = self._encode("/truth/pose", pose_in_frame(log_time, q_wxyz, TRUTH_OFFSET_NED_M))
+        tf = self._encode("/tf", frame_transforms(log_time, TRUTH_FRAME, q_wxyz, TRUTH_OFFSET_NED_M))
+        if pose is not None and tf is not None:
+            self.write_message("/truth/pose", log_time, t_ns, pose)
+            self.write_message("/tf", log_time, t_ns, tf)
 
     def write_status(self, t_ns: int, status: dict[str, Any]) -> None:
         """A health/counters dict on ``/status``."""
-        self.write_message("/status", t_ns, t_ns, dumps(status))
+        data = self._encode("/status", status)
+        if data is not None:
+            self.write_message("/status", t_ns, t_ns, data)
 
     def close(self) -> None:
         """Write the last chunk, the summary and the footer; idempotent."""
         if self.closed:
             return
         self.closed = True
-        self._writer.finish()
-        self._file.close()
+        try:
+            self._writer.finish()
+        finally:
+            self._file.close()
         self.records_on_disk = self._count
 
     def __enter__(self) -> McapRecorder:
@@ -296,10 +353,15 @@ class McapRecorder:
 
 
 def _record_child(
-    path: str, chunk_size: int, metadata: dict[str, str] | None, q: mp.Queue, on_disk: Any, parent: int
+    path: str, chunk_size: int, metadata: dict[str, str] | None, q: mp.Queue, on_disk: Any, rejected: Any, parent: int
 ) -> None:
-    """Child process: apply queued ``(method, args)`` calls until ``None`` or the parent is gone."""
+    """Child process: apply queued ``(method, args)`` calls until ``None`` or the parent is gone.
+
+    A call that fails is counted with the recorder's own rejections and the
+    child goes on: no single record ends the recording.
+    """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C goes to the parent, which closes us cleanly
+    failed = 0
     with McapRecorder(path, chunk_size, metadata) as rec:
         while True:
             try:
@@ -311,8 +373,14 @@ def _record_child(
             if item is None:
                 break
             method, args = item
-            getattr(rec, method)(*args)
+            try:
+                getattr(rec, method)(*args)
+            except Exception as e:  # noqa: BLE001 - the recorder must outlive any one record
+                failed += 1
+                if failed == 1:
+                    log.warning("recorder: %s failed (%s: %s); recording goes on", method, type(e).__name__, e)
             on_disk.value = rec.records_on_disk
+            rejected.value = rec.rejected_total + failed
     on_disk.value = rec.records_on_disk
 
 
@@ -321,7 +389,8 @@ class RecorderProcess:
 
     Writes never block nor raise: when the queue is full or the child is dead
     the call is counted in ``dropped``. ``records_on_disk`` is how many
-    records the child has in complete chunks on disk.
+    records the child has in complete chunks on disk, ``rejected`` how many
+    it refused (see :class:`McapRecorder`) or failed to write.
     """
 
     def __init__(
@@ -334,9 +403,10 @@ class RecorderProcess:
         ctx = mp.get_context("spawn")  # the parent runs zenoh threads: never fork it
         self._queue: mp.Queue = ctx.Queue(queue_size)
         self._on_disk = ctx.RawValue("q", 0)
+        self._rejected = ctx.RawValue("q", 0)
         self._proc = ctx.Process(
             target=_record_child,
-            args=(str(path), chunk_size, metadata, self._queue, self._on_disk, os.getpid()),
+            args=(str(path), chunk_size, metadata, self._queue, self._on_disk, self._rejected, os.getpid()),
             name="bingham-fuser-recorder",
             daemon=True,
         )
@@ -357,6 +427,11 @@ class RecorderProcess:
     def records_on_disk(self) -> int:
         return int(self._on_disk.value)
 
+    @property
+    def rejected(self) -> int:
+        """Records the child refused or failed to write (it goes on recording)."""
+        return int(self._rejected.value)
+
     def _put(self, method: str, *args: Any) -> None:
         if self._closed or not self._proc.is_alive():
             self.dropped += 1
@@ -373,8 +448,8 @@ class RecorderProcess:
     def write_estimate(self, est: Estimate) -> None:
         self._put("write_estimate", est)
 
-    def write_truth(self, t_ns: int, q_wxyz: Quat) -> None:
-        self._put("write_truth", t_ns, tuple(q_wxyz))
+    def write_truth(self, t_ns: int, q_wxyz: Quat, log_time_ns: int | None = None) -> None:
+        self._put("write_truth", t_ns, tuple(q_wxyz), log_time_ns)
 
     def write_status(self, t_ns: int, status: dict[str, Any]) -> None:
         self._put("write_status", t_ns, status)
@@ -411,15 +486,6 @@ class RecorderProcess:
         self.close()
 
 
-class RawMessage(NamedTuple):
-    """One message as stored: its topic, times and JSON bytes, not decoded."""
-
-    topic: str
-    log_time: int
-    publish_time: int
-    data: bytes
-
-
 @dataclass
 class LogContents:
     """What :func:`read_log` recovered: ``raw`` messages in log-time order, decoded on demand."""
@@ -428,8 +494,10 @@ class LogContents:
     complete: bool
     """False if the file has no footer (recorder killed) or is damaged; ``raw`` then holds every complete chunk."""
     error: str | None = None
-    """Why reading stopped before the footer, if it did."""
+    """Why reading stopped before the footer, or what was damaged."""
     metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    skipped: Skipped = field(default_factory=Skipped)
+    """What a damaged file lost: chunks, bytes, messages (empty for a sound file)."""
 
     @cached_property
     def messages(self) -> list[tuple[str, int, dict[str, Any]]]:
@@ -457,15 +525,18 @@ class LogContents:
         return [Estimate.from_dict(d) for _, d in self.topic("/estimate")]
 
     def truth(self) -> list[tuple[int, Quat]]:
-        """``(t_ns, q_wxyz)`` from ``/truth/pose``."""
-        return [(t, _quat_wxyz(d)) for t, d in self.topic("/truth/pose")]
+        """``(t_ns, q_wxyz)`` from ``/truth/pose``, ``t_ns`` on the vehicle's clock (the publish time)."""
+        return [(m.publish_time, _quat_wxyz(json.loads(m.data))) for m in self.of(("/truth/pose",))]
 
     def status(self) -> list[tuple[int, dict[str, Any]]]:
         return self.topic("/status")
 
     def describe(self) -> str:
-        state = "complete" if self.complete else f"INCOMPLETE ({self.error}); recovered every complete chunk"
-        return f"{self.records} records, {state}"
+        if self.complete:
+            return f"{self.records} records, complete"
+        if self.skipped:
+            return f"{self.records} records, DAMAGED: skipped {self.skipped.describe()}; read every sound chunk"
+        return f"{self.records} records, INCOMPLETE ({self.error}); recovered every complete chunk"
 
 
 def _quat_wxyz(pose: dict[str, Any]) -> Quat:
@@ -473,76 +544,15 @@ def _quat_wxyz(pose: dict[str, Any]) -> Quat:
     return (o["w"], o["x"], o["y"], o["z"])
 
 
-_RECORD = struct.Struct("<BQ")
-"""Opcode and length of every MCAP record."""
-_MESSAGE = struct.Struct("<HIQQ")
-"""Channel id, sequence, log time and publish time: the fixed part of a Message record."""
-
-
-class _LogReader(StreamReader):
-    """mcap's StreamReader, skipping (not parsing) the indexes: read_log reads the data in file order."""
-
-    _SKIPPED = frozenset({Opcode.MESSAGE_INDEX, Opcode.CHUNK_INDEX, Opcode.ATTACHMENT_INDEX, Opcode.METADATA_INDEX,
-                          Opcode.STATISTICS, Opcode.SUMMARY_OFFSET})
-
-    def _read_record(self, opcode: int, length: int) -> McapRecord | None:
-        if opcode in self._SKIPPED:
-            return None  # the caller reads the whole length as padding (CRC included)
-        return super()._read_record(opcode, length)
-
-
-def _chunk_messages(chunk: Chunk, channels: dict[int, str]) -> list[RawMessage]:
-    """The messages of a chunk (its CRC checked), registering the channels it declares.
-
-    mcap's own reader builds a record object per message; parsing the message
-    headers here with one ``unpack_from`` each is several times faster.
-    """
-    stream, size = get_chunk_data_stream(chunk, validate_crc=True)
-    data = stream.read(size)
-    out: list[RawMessage] = []
-    pos = 0
-    while pos < size:
-        opcode, length = _RECORD.unpack_from(data, pos)
-        pos += _RECORD.size
-        end = pos + length
-        if end > size:
-            raise ValueError(f"record of {length} bytes overruns its chunk")
-        if opcode == Opcode.MESSAGE:
-            channel_id, _, log_time, publish_time = _MESSAGE.unpack_from(data, pos)
-            out.append(RawMessage(channels[channel_id], log_time, publish_time, data[pos + _MESSAGE.size : end]))
-        elif opcode == Opcode.CHANNEL:
-            channel = Channel.read(ReadDataStream(BytesIO(data[pos:end])))
-            channels[channel.id] = channel.topic
-        pos = end
-    return out
-
-
 def read_log(path: str | Path) -> LogContents:
-    """Read an MCAP log, complete or cut short (killed recorder, truncated copy).
+    """Read an MCAP log, complete, cut short (killed recorder, truncated copy) or damaged.
 
-    Records are read in file order with chunk CRCs checked; a chunk is
-    kept only whole, so reading stops at the first incomplete or damaged
-    record and everything before it is kept. Messages stay JSON bytes
-    until asked for (:class:`LogContents`).
+    Records are read in file order with chunk CRCs checked (:func:`fuser.mcap_scan.scan_mcap`):
+    a damaged chunk is skipped and counted in ``skipped``, and reading goes on
+    with the next record; a file cut short keeps every complete chunk. Messages
+    stay JSON bytes until asked for (:class:`LogContents`). Raises
+    :class:`~fuser.mcap_scan.NotAnMcapError` if the file is not an MCAP at all.
     """
-    channels: dict[int, str] = {}
-    raw: list[RawMessage] = []
-    metadata: dict[str, dict[str, str]] = {}
-    complete, error = False, None
-    size = os.path.getsize(path)
-    with open(path, "rb") as f:
-        try:
-            for rec in _LogReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=size).records:
-                if isinstance(rec, Chunk):
-                    raw += _chunk_messages(rec, channels)
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec.topic
-                elif isinstance(rec, Message):
-                    raw.append(RawMessage(channels[rec.channel_id], rec.log_time, rec.publish_time, rec.data))
-                elif isinstance(rec, Metadata):
-                    metadata[rec.name] = dict(rec.metadata)
-            complete = True  # the reader stops only after the footer and the closing magic
-        except Exception as e:  # noqa: BLE001 - any damage ends recovery; what came before is kept
-            error = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
-    raw.sort(key=itemgetter(1))  # stable: equal log times keep file order
-    return LogContents(raw, complete, error, metadata)
+    scan = scan_mcap(path)
+    raw = sorted(scan.messages, key=itemgetter(1))  # stable: equal log times keep file order
+    return LogContents(raw, scan.complete, scan.error, scan.metadata, scan.skipped)

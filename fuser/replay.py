@@ -6,28 +6,46 @@ files. The output MCAP holds the inputs again (so it can itself be
 replayed), the estimates, and the log's truth if it had any. Inputs and
 truth from an MCAP log are copied as they are stored (JSON bytes), not
 decoded and encoded again.
+
+A damaged MCAP replays every chunk that can be read (``ReplaySummary.skipped``
+says what could not). A file that is not a log raises
+:class:`~fuser.errors.NotALogError`, a log with nothing to replay
+:class:`ReplayError`; in both cases, and whenever replay fails, no output file
+is left behind (it is written under a temporary name and renamed at the end).
 """
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import sys
 import time
-from dataclasses import dataclass
+from collections.abc import Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator, TextIO
+from typing import TYPE_CHECKING, Iterator, TextIO
 
 from drivers.samples import Sample
 from fuser.codec import decode_sample
 from fuser.config import FuserConfig
+from fuser.errors import FuserError, NotALogError
 from fuser.inputs import tlog_inputs
-from fuser.pipeline import Pipeline
+from fuser.mcap_scan import RawMessage, Skipped
+from fuser.progress import progress_bar
 from fuser.record import INPUT_TOPICS, LogContents, McapRecorder, read_log
 
-__all__ = ["ReplaySummary", "replay"]
+if TYPE_CHECKING:
+    from fuser.pipeline import Pipeline
+
+__all__ = ["ReplayError", "ReplaySummary", "replay"]
 
 MAX_CATCH_UP_TICKS = 1000
 """A gap in a log longer than this many ticks is skipped (counted), not filled tick by tick."""
+
+
+class ReplayError(FuserError):
+    """The log holds nothing that could be replayed."""
 
 
 @dataclass(frozen=True)
@@ -36,65 +54,92 @@ class ReplaySummary:
     estimates: int
     seconds: float
     counters: dict[str, int]
+    incomplete: str | None = None
+    """Why an MCAP log was not read to its footer (cut short, damaged), or None."""
+    skipped: Skipped | None = None
+    """What a damaged MCAP log lost (chunks, bytes, messages), or None if nothing was skipped."""
+    not_recorded: dict[str, int] = field(default_factory=dict)
+    """Records the output could not hold, by reason (``McapRecorder.rejected``: a time outside uint64, NaN)."""
 
     @property
     def samples_per_s(self) -> float:
         return self.samples / self.seconds if self.seconds > 0 else float("inf")
 
 
-class _Progress:
-    """One self-overwriting status line on a terminal, at most twice a second."""
-
-    def __init__(self, stream: TextIO | None) -> None:
-        self.stream = stream if stream is not None and stream.isatty() else None
-        self.start = time.monotonic()
-        self.last = 0.0
-
-    def update(self, samples: int, log_s: float) -> None:
-        now = time.monotonic()
-        if self.stream is None or now - self.last < 0.5:
-            return
-        self.last = now
-        rate = samples / max(now - self.start, 1e-9)
-        self.stream.write(f"\rreplay: {samples:,} samples, {log_s:,.1f} s of log, {rate:,.0f} samples/s")
-        self.stream.flush()
-
-    def done(self) -> None:
-        if self.stream is not None:
-            self.stream.write("\n")
-
-
-def _copied_inputs(contents: LogContents, pipeline: Pipeline, recorder: McapRecorder) -> Iterator[tuple[Sample, int]]:
+def _copied_inputs(messages: Iterable[RawMessage], pipeline: Pipeline, recorder: McapRecorder) -> Iterator[tuple[Sample, int]]:
     """An MCAP log's inputs, each written unchanged to ``recorder`` where an input sink of the pipeline would write it."""
-    for m in contents.of(INPUT_TOPICS):
+    for m in messages:
         sample, receive_ns = decode_sample(m.topic, json.loads(m.data))
         pipeline.advance(receive_ns)  # as in Pipeline.feed: the ticks due before the sample are recorded before it
         recorder.write_message(m.topic, receive_ns, sample.t_ns, m.data)
         yield sample, receive_ns
 
 
+def _read_mcap(log: Path) -> tuple[LogContents, list[RawMessage]]:
+    """The log and its input messages; ReplayError if it has none."""
+    contents = read_log(log)
+    inputs = contents.of(INPUT_TOPICS)
+    if not inputs:
+        what = contents.describe() if contents.records else f"no record could be read ({contents.error})"
+        raise ReplayError(f"nothing to replay in {log}: no input samples ({what})")
+    return contents, inputs
+
+
+TLOG_PROBE_BYTES = 64 * 1024
+
+
+def _check_tlog(log: Path) -> None:
+    """Refuse a file with no MAVLink start byte (0xFE v1, 0xFD v2) in its first 64 KiB: empty, text, another format.
+
+    A .tlog is records of an 8-byte receive time and a MAVLink packet; what
+    else it holds (garbage, bad CRCs) the decoder counts, so only a file that
+    cannot hold a single packet is refused here.
+    """
+    with open(log, "rb") as f:
+        head = f.read(TLOG_PROBE_BYTES)
+    if b"\xfd" not in head and b"\xfe" not in head:
+        raise NotALogError(f"{log} is not a MAVLink telemetry log ({'it is empty' if not head else 'no MAVLink packet in it'})")
+
+
 def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: TextIO | None = sys.stderr) -> ReplaySummary:
-    """Fuse every input of ``log`` (MCAP or .tlog) and record the result to ``out``."""
-    bar = _Progress(progress)
+    """Fuse every input of ``log`` (MCAP or .tlog) and record the result to ``out``.
+
+    ``progress``: where to draw a progress bar (only if it is a terminal).
+    """
+    log, out = Path(log), Path(out)
+    if not log.is_file():  # before pymavlink takes a missing .tlog for a serial port
+        raise FileNotFoundError(errno.ENOENT, "no such log file", str(log))
+    if log.suffix == ".tlog":
+        _check_tlog(log)
+    contents, messages = (None, None) if log.suffix == ".tlog" else _read_mcap(log)
+    from fuser.pipeline import Pipeline  # noqa: PLC0415 - the model's kernels load only once the log is known to be one
+
+    partial = out.with_name(f".{out.name}.{os.getpid()}.partial")
     start = time.monotonic()
     samples = 0
-    first_ns: int | None = None
-    contents = None if str(log).endswith(".tlog") else read_log(log)
     provenance = {} if contents is None else contents.metadata.get("bingham_fuser", {})  # reference, source, attribution
-    with McapRecorder(out, metadata={**provenance, "source_log": Path(log).name}) as recorder:
-        pipeline = Pipeline(config, [], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
-        if contents is None:
-            pipeline.inputs.append(recorder.write_sample)
-        for sample, receive_ns in (tlog_inputs(log) if contents is None else _copied_inputs(contents, pipeline, recorder)):
-            pipeline.feed(sample, receive_ns)
-            samples += 1
-            first_ns = receive_ns if first_ns is None else first_ns
-            if samples % 4096 == 0:
-                bar.update(samples, (receive_ns - first_ns) * 1e-9)
-        pipeline.finish()
-        if contents is not None:
-            for truth in contents.of(["/truth/pose"]):
-                recorder.write_message(*truth)
-    bar.done()
+    try:
+        with McapRecorder(partial, metadata={**provenance, "source_log": log.name}) as recorder:
+            pipeline = Pipeline(config, [], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
+            if messages is None:
+                pipeline.inputs.append(recorder.write_sample)
+                inputs: Iterable[tuple[Sample, int]] = progress_bar(tlog_inputs(log), None, "replay", " samples", progress)
+            else:
+                inputs = _copied_inputs(progress_bar(messages, len(messages), "replay", " samples", progress), pipeline, recorder)
+            for sample, receive_ns in inputs:
+                pipeline.feed(sample, receive_ns)
+                samples += 1
+            pipeline.finish()
+            if contents is not None:
+                for truth in contents.of(["/truth/pose"]):
+                    recorder.write_message(*truth)
+        if samples == 0:
+            raise ReplayError(f"nothing to replay in {log}: no IMU, magnetometer, attitude or GNSS message could be decoded")
+        os.replace(partial, out)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
     counters = dict(pipeline.loop.counters) | dict(pipeline.loop.model.counters)
-    return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters)
+    incomplete = None if contents is None or contents.complete else contents.error
+    skipped = contents.skipped if contents is not None and contents.skipped else None
+    return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters, incomplete, skipped, dict(recorder.rejected))

@@ -136,7 +136,10 @@ def score_log(path: str | Path, since_s: float = CONVERGENCE_S) -> list[str]:
     if result is None:
         return [f"{path}: no reference attitude to score against"]
     err = result[1]
-    return _score_lines(reference_of(contents), err, _window(err, since_s))
+    ref = reference_of(contents)
+    if err.t_ns.size == 0:
+        return [f"{path}: no estimate within the time span of the {ref.name} to score against"]
+    return _score_lines(ref, err, _window(err, since_s))
 
 
 def _euler_deg(q: NDArray) -> NDArray:

@@ -28,6 +28,7 @@ from typing import Any, Callable
 import numpy as np
 
 from drivers.sim import Flight, dronecan_stream, mavlink_stream
+from fuser.errors import FuserError
 
 os.environ.setdefault("MAVLINK20", "1")  # before pymavlink's first import (see drivers.sources)
 
@@ -168,25 +169,26 @@ def send_flight(
 
 
 def run_sender(args: Any, stop: Callable[[], bool]) -> int:
-    """``bingham-fuser sim --send ...``: build the flight from the sim flags, write the truth, send."""
+    """``bingham-fuser sim --send ...``: build the flight from the sim flags, write the truth, send.
+
+    The command line has checked the flags (fuser.cli): only the sender's own act here.
+    """
     from drivers.scenarios import flight as make_flight
 
-    if args.speed != 1.0:
-        print("sim --send: a live link runs in real time; --speed must be 1", file=sys.stderr)
-        return 2
     flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
     if args.truth:
         write_truth(flight, args.truth)
-    faults = SendFaults(garbage_per_s=args.garbage, seed=args.seed)
-    if args.outage:
-        at, _, seconds = args.outage.partition(":")
-        faults = SendFaults(float(at), float(seconds), args.garbage, args.seed)
+    at, seconds = args.outage or (None, 0.0)  # parsed by the command line as (AT, SECONDS)
+    faults = SendFaults(at, seconds, args.garbage, args.seed)
     bus = None
     if args.send_can:
         import can
 
         interface, _, channel = args.send_can.partition(":")
-        bus = can.Bus(interface=interface, channel=channel)
+        try:
+            bus = can.Bus(interface=interface, channel=channel)
+        except (can.CanError, OSError, ValueError) as e:
+            raise FuserError(f"cannot open CAN bus {args.send_can}: {e}") from e
     start = args.start_at or "+0.2"
     start_at = time.time() + float(start[1:]) if start.startswith("+") else float(start)
     seconds = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
@@ -196,6 +198,8 @@ def run_sender(args: Any, stop: Callable[[], bool]) -> int:
         print(f"sim --send: started {time.time() - start_at:.3f} s late", file=sys.stderr, flush=True)
     try:
         report = send_flight(flight, args.send, bus, start_at, faults, stop)
+    except OSError as e:  # the link would not open, or went away while sending
+        raise FuserError(f"cannot send to {args.send}: {e.strerror or e}") from e
     finally:
         if bus is not None:
             bus.shutdown()

@@ -2,10 +2,14 @@
 
 The simulator's MAVLink bytes (or DroneCAN frames) go through the real
 decoders, then the same pipeline as live data. Paced to the wall clock
-(``speed=1``), faster (``speed=10``) or as fast as possible (``speed=0``,
-then the receive time is the send time plus a fixed link latency, and the
-run is deterministic). Truth is recorded at the vehicle's own time, the
-clock of each estimate's ``sensor_t_ns``, so scoring needs no alignment.
+(``speed=1``), faster (``speed=10``): then each sample is received at the
+:class:`~fuser.wallclock.WallClock`'s time, Unix nanoseconds, like live data.
+Or as fast as possible (``speed=0``): then the receive time is the send time
+plus a fixed link latency, on the simulated flight's own clock, and the run
+is deterministic. Truth goes to its sinks as ``(t_ns, q, log_ns)``: ``t_ns``
+on the vehicle's own clock, the clock of each estimate's ``sensor_t_ns`` (so
+scoring needs no alignment), and ``log_ns`` the receive time of that IMU tick,
+so that truth and estimates are recorded on one timeline.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ from typing import Callable, Sequence
 from drivers.sim import Flight
 from fuser.inputs import SIM_LINK_LATENCY_NS, sim_ticks
 from fuser.pipeline import Pipeline
+from fuser.wallclock import WallClock
 
 __all__ = ["SimRun", "run_sim"]
 
@@ -33,16 +38,20 @@ def run_sim(
     flight: Flight,
     transport: str = "mavlink",
     speed: float = 1.0,
-    truth_sinks: Sequence[Callable[[int, tuple], None]] = (),
+    truth_sinks: Sequence[Callable[[int, tuple, int], None]] = (),
     should_stop: Callable[[], bool] = lambda: False,
     truth_rate_hz: float = 100.0,
+    clock: WallClock | None = None,
 ) -> SimRun:
     """Fly a simulated flight through ``pipeline``; returns counts and wall time.
 
     Truth goes to ``truth_sinks`` at most ``truth_rate_hz`` times a second
     (slerp between 100 Hz samples is far more accurate than any estimate).
+    A paced run receives on ``clock`` (default: measured now).
     """
-    start_wall = time.monotonic_ns()
+    clock = (clock or WallClock.start()) if speed > 0 else None
+    start_mono = time.monotonic_ns()
+    start_wall = clock.now_ns() if clock is not None else 0
     t0 = int(flight.t_ns[0])
     truth_period = round(1e9 / truth_rate_hz)
     next_truth = t0
@@ -50,20 +59,20 @@ def run_sim(
     for t_ns, q_true, tick in sim_ticks(flight, transport):
         if should_stop():
             break
-        if speed > 0:
+        if clock is not None:
             due = start_wall + round((t_ns - t0) / speed)
-            while (now := time.monotonic_ns()) < due:
+            while (now := clock.now_ns()) < due:
                 pipeline.advance(now)
                 time.sleep(min((due - now) / 1e9, 0.002))
-            received = time.monotonic_ns()
+            received = clock.now_ns()
         else:
             received = t_ns + SIM_LINK_LATENCY_NS
         if t_ns >= next_truth:
             next_truth += truth_period
             for sink in truth_sinks:
-                sink(t_ns, tuple(float(v) for v in q_true))
+                sink(t_ns, tuple(float(v) for v in q_true), received)
         for sample in tick:
             pipeline.feed(sample, received)
             samples += 1
     pipeline.finish()
-    return SimRun(samples, pipeline.estimates, (time.monotonic_ns() - start_wall) / 1e9)
+    return SimRun(samples, pipeline.estimates, (time.monotonic_ns() - start_mono) / 1e9)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import random
 import signal
@@ -15,7 +16,7 @@ from mcap.writer import CompressionType, Writer
 
 from drivers.samples import AttitudeSample, ImuSample, MagSample, SourceId
 from fuser.codec import Estimate
-from fuser.record import CHANNELS, McapRecorder, RecorderProcess, read_log
+from fuser.record import CHANNELS, McapRecorder, NotAnMcapError, RecorderProcess, read_log
 
 MAV = SourceId("mavlink", 1, 1, 0)
 CAN = SourceId("dronecan", 42, 0, 1)
@@ -170,8 +171,12 @@ def test_truncated_copies_recover_a_prefix_without_exception(tmp_path: Path) -> 
     data = full_path.read_bytes()
     full = read_log(full_path)
     cut_path = tmp_path / "cut.mcap"
+    for cut in (0, 3):  # not even the magic: nothing says this was ever a log
+        cut_path.write_bytes(data[:cut])
+        with pytest.raises(NotAnMcapError):
+            read_log(cut_path)
     recovered = {}
-    for cut in (0, 3, 8, 30, 200, len(data) // 4, len(data) // 2, 3 * len(data) // 4, len(data) - 200, len(data) - 1):
+    for cut in (8, 30, 200, len(data) // 4, len(data) // 2, 3 * len(data) // 4, len(data) - 200, len(data) - 1):
         cut_path.write_bytes(data[:cut])
         log = read_log(cut_path)
         assert not log.complete and log.error, cut
@@ -203,3 +208,62 @@ def test_logs_of_other_writers_read_like_mcaps_own_reader(tmp_path: Path, option
     log = read_log(path)
     assert log.complete
     assert [tuple(m) for m in log.raw] == expected
+
+
+def unstorable_calls() -> list[tuple[str, tuple]]:
+    """Records a recorder cannot store, as a hostile link or a diverged filter would hand them over."""
+    nan_est = Estimate(5_000, (1.0, 0.0, 0.0, 0.0), ((1.0, 0.0, 0.0, 0.0),) * 4, (0.0, -1.0, -1.0, -1.0), float("nan"), (0.0, 0.0, 0.0))
+    return [
+        ("write_sample", (ImuSample(2**63 * 1000, (0.0, 0.0, 0.0), (0.0, 0.0, -9.81), None, MAV), 1_000)),  # time_usec = 2^63
+        ("write_sample", (ImuSample(1_000, (0.0, 0.0, 0.0), (0.0, 0.0, -9.81), None, MAV), -5)),  # before the epoch
+        ("write_sample", (ImuSample(1_000, (float("nan"), 0.0, 0.0), (0.0, 0.0, -9.81), None, MAV), 2_000)),
+        ("write_sample", (MagSample(1_000, (float("inf"), 0.0, 0.0), MAV), 2_000)),
+        ("write_estimate", (nan_est,)),
+        ("write_truth", (2**64, (1.0, 0.0, 0.0, 0.0))),
+    ]
+
+
+UNSTORABLE = {"time_out_of_range": 3, "not_json": 3}
+
+
+def interleave(good: list, bad: list) -> list:
+    step = len(good) // (len(bad) + 1)
+    out = list(good)
+    for i, call in enumerate(bad):
+        out.insert((i + 1) * step + i, call)
+    return out
+
+
+def test_records_that_cannot_be_stored_are_counted_and_the_rest_is_intact(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    good = make_calls(60)
+    path = tmp_path / "a.mcap"
+    with caplog.at_level(logging.WARNING, logger="fuser.record"), McapRecorder(path, chunk_size=2048) as rec:
+        for method, args in interleave(good, unstorable_calls()):
+            getattr(rec, method)(*args)
+    assert rec.rejected == UNSTORABLE
+    assert len(caplog.records) == 1 and "recorder.rejected" in caplog.records[0].getMessage()  # said once, then counted
+    # the file is complete and holds exactly the good records: read by mcap's own reader (CRCs checked)
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        stored = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in reader.iter_messages(log_time_order=True)]
+    record(tmp_path / "good.mcap", good, chunk_size=2048)
+    assert path.read_bytes() == (tmp_path / "good.mcap").read_bytes()
+    assert len(stored) == read_log(path).records == len(expected_messages(good)) + sum(m == "write_estimate" for m, _ in good)
+
+
+def test_recorder_process_outlives_records_it_cannot_store(tmp_path: Path) -> None:
+    good = make_calls(60)
+    with RecorderProcess(tmp_path / "child.mcap", chunk_size=2048) as rp:
+        for method, args in interleave(good, unstorable_calls()):
+            getattr(rp, method)(*args)
+        rp.write_sample(object(), 0)  # not a sample at all: the child's call fails, the child goes on
+        for method, args in make_calls(10, seed=9):
+            getattr(rp, method)(*args)
+        deadline = time.monotonic() + 10
+        while rp.rejected < sum(UNSTORABLE.values()) + 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert rp.alive
+    assert rp.close() is True and rp.dropped == 0
+    assert rp.rejected == sum(UNSTORABLE.values()) + 1
+    record(tmp_path / "direct.mcap", good + make_calls(10, seed=9), chunk_size=2048)
+    assert (tmp_path / "child.mcap").read_bytes() == (tmp_path / "direct.mcap").read_bytes()

@@ -1,0 +1,33 @@
+"""Expected failures, each with the exit code it deserves and a message that says what to fix.
+
+The command line (``fuser.cli``) prints such an error as one line on stderr
+and exits with its ``exit_code``; anything else it reports as an internal
+error. Modules raise these where they know what went wrong in the user's
+terms (which file, which port, which option).
+"""
+
+from __future__ import annotations
+
+__all__ = ["EXIT_RUNTIME", "EXIT_USAGE", "FuserError", "NotALogError", "UsageError"]
+
+EXIT_RUNTIME = 1
+"""It started and failed: a link or port that cannot be opened, a log with nothing readable, a write that failed."""
+EXIT_USAGE = 2
+"""The command as given cannot run: a bad option or value, a bad configuration, a missing or wrong input file,
+a missing optional package."""
+
+
+class FuserError(Exception):
+    """An expected failure; ``str()`` is the one line for the user."""
+
+    exit_code = EXIT_RUNTIME
+
+
+class UsageError(FuserError):
+    """The command, its arguments, its configuration or its input files are wrong."""
+
+    exit_code = EXIT_USAGE
+
+
+class NotALogError(UsageError, ValueError):
+    """The file given as a log is not one at all (empty, random bytes, text, another format)."""

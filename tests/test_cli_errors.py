@@ -1,0 +1,261 @@
+"""Every bad input a user can give ends in one line on stderr, exit 2 (usage) or 1 (runtime), no traceback,
+and no output file left behind.
+
+Each case runs ``bingham-fuser`` in a subprocess of its own, in an empty
+folder (with only the files the case needs); all of them start at once, so
+the whole table costs about one interpreter start per core.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+
+from fuser.config import load_config
+
+ROOT = Path(__file__).resolve().parent.parent
+LOG = ROOT / "logs" / "sim_hover.mcap"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _config_validates() -> bool:
+    """Whether the configuration rejects a wrong type and a zero time constant at construction (the model branch's work)."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        for text in ('rate_hz = "fast"\n', "accel_lowpass_s = 0\n"):
+            path = Path(d) / "c.toml"
+            path.write_text("[fuser]\n" + text)
+            try:
+                load_config(path)
+            except ValueError:
+                continue
+            return False
+    return True
+
+
+@dataclass
+class Case:
+    argv: list[str]
+    code: int
+    says: tuple[str, ...]
+    """Substrings of the one stderr line."""
+    files: dict[str, bytes] = field(default_factory=dict)
+    python: str | None = None
+    """Run ``python -c`` this instead of the command (to hide a package)."""
+    skip: str | None = None
+    writes: tuple[str, ...] = ()
+    """Files the command is expected to write (a run that succeeds despite damage)."""
+
+
+def _text(s: str) -> bytes:
+    return s.encode()
+
+
+def damaged_log() -> tuple[bytes, int, int]:
+    """logs/sim_hover.mcap with the compressed data of its 4th chunk corrupted; the chunk's size and message count."""
+    from test_fuser_damaged import chunks_of, damage
+
+    spans, contents = chunks_of(LOG)
+    return damage(LOG.read_bytes(), *spans[3], "data"), spans[3][1], len(contents[3])
+
+
+DAMAGED, DAMAGED_BYTES, DAMAGED_MESSAGES = damaged_log()
+BUSY_PORT = free_port()
+CLOSED_PORT = free_port()
+RANDOM = bytes((i * 7919 + 13) % 251 for i in range(5000))
+BAD_FUSER = "[fuser]\n"
+NO_VALIDATION = None if _config_validates() else "configuration validation comes with the model branch (config.py)"
+
+CASES: dict[str, Case] = {
+    # damaged logs (issue 12, item 5)
+    "replay-missing-input": Case(["replay", "nope.mcap", "-o", "out.mcap"], 2, ("nope.mcap",)),
+    "replay-empty-file": Case(["replay", "in.mcap", "-o", "out.mcap"], 2, ("in.mcap", "empty"), {"in.mcap": b""}),
+    "replay-random-bytes": Case(["replay", "in.mcap", "-o", "out.mcap"], 2, ("not an MCAP",), {"in.mcap": RANDOM}),
+    "replay-text-named-mcap": Case(["replay", "in.mcap", "-o", "out.mcap"], 2, ("not an MCAP",), {"in.mcap": _text("hello\n" * 50)}),
+    "replay-text-named-tlog": Case(["replay", "in.tlog", "-o", "out.mcap"], 2, ("in.tlog is not a MAVLink telemetry log",), {"in.tlog": _text("hello\n" * 50)}),
+    "replay-damaged-chunk": Case(["replay", "in.mcap", "-o", "out.mcap"], 0,
+                                 ("warning: in.mcap is damaged", f"skipped 1 chunk ({DAMAGED_BYTES:,} bytes, {DAMAGED_MESSAGES} messages)"),
+                                 {"in.mcap": DAMAGED}, writes=("out.mcap",)),
+    "report-of-a-text-file": Case(["report", "in.mcap", "-o", "rep"], 2, ("not an MCAP",), {"in.mcap": _text("hello\n")}),
+    # connection strings and buses (issue 12, item 6)
+    "mavlink-notaport": Case(["run", "--mavlink", "notaport", "--no-zenoh"], 2, ("notaport", "udpin:HOST:PORT")),
+    "mavlink-bad-ip": Case(["run", "--mavlink", "999.1.1.1", "--no-zenoh"], 2, ("999.1.1.1", "not a MAVLink connection")),
+    "mavlink-refused": Case(["run", "--mavlink", f"tcp:127.0.0.1:{CLOSED_PORT}", "--no-zenoh", "-o", "rec.mcap"], 1,
+                            (f"tcp:127.0.0.1:{CLOSED_PORT}", "refused")),
+    "can-unknown-interface": Case(["run", "--can", "nope:can0", "--no-zenoh"], 2, ("unknown CAN interface 'nope'", "socketcan")),
+    "can-unknown-channel": Case(["run", "--can", "slcan:/dev/no-such-adapter", "--no-zenoh"], 1, ("cannot open CAN bus", "/dev/no-such-adapter")),
+    # configuration
+    "config-wrong-type": Case(["replay", str(LOG), "-o", "out.mcap", "--config", "c.toml"], 2, ("rate_hz",),
+                              {"c.toml": _text(BAD_FUSER + 'rate_hz = "fast"\n')}, skip=NO_VALIDATION),
+    "config-zero-time-constant": Case(["replay", str(LOG), "-o", "out.mcap", "--config", "c.toml"], 2, ("accel_lowpass_s",),
+                                      {"c.toml": _text(BAD_FUSER + "accel_lowpass_s = 0\n")}, skip=NO_VALIDATION),
+    # a port in use, e.g. by a ROS 2 rmw_zenoh router on 7447 (here a plain TCP listener on a free port)
+    "zenoh-port-in-use": Case(["sim", "--scenario", "hover", "--speed", "0", "-o", "sim.mcap", "--zenoh-listen", f"tcp/127.0.0.1:{BUSY_PORT}"],
+                              1, (f"tcp/127.0.0.1:{BUSY_PORT}", "in use", "--zenoh-listen", f"--zenoh-connect tcp/127.0.0.1:{BUSY_PORT}")),
+    # options where they do not act (issue 16, item 5)
+    "report-rate-no-mag": Case(["report", str(LOG), "--rate", "5", "--no-mag"], 2, ("report does not take --rate 5 --no-mag",)),
+    # a missing optional package
+    "report-without-matplotlib": Case(["report", str(LOG), "-o", "rep"], 2, ("matplotlib", "pip install"),
+                                      python="import sys; sys.modules['matplotlib'] = None; from fuser.cli import main; sys.exit(main(sys.argv[1:]))"),
+}
+
+
+@dataclass
+class Result:
+    code: int
+    stderr: str
+    stdout: str
+    left: set[str]
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Result]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    busy = socket.socket()
+    busy.bind(("127.0.0.1", BUSY_PORT))
+    busy.listen()
+    procs: dict[str, tuple[subprocess.Popen, Path]] = {}
+    try:
+        for name, case in CASES.items():
+            if case.skip:
+                continue
+            folder = tmp_path_factory.mktemp(name)
+            for fname, data in case.files.items():
+                (folder / fname).write_bytes(data)
+            head = [sys.executable, "-c", case.python] if case.python else [sys.executable, "-m", "fuser.cli"]
+            procs[name] = (subprocess.Popen(head + case.argv, cwd=folder, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                            stdin=subprocess.DEVNULL, text=True), folder)
+        out = {}
+        for name, (proc, folder) in procs.items():
+            stdout, stderr = proc.communicate(timeout=120)
+            out[name] = Result(proc.returncode, stderr, stdout, {p.name for p in folder.iterdir()})
+        return out
+    finally:
+        for proc, _ in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+        busy.close()
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_input_is_one_line_and_an_exit_code(name: str, results: dict[str, Result]) -> None:
+    case = CASES[name]
+    if case.skip:
+        pytest.skip(case.skip)
+    r = results[name]
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1, r.stderr
+    assert "Traceback" not in r.stderr and "internal error" not in r.stderr
+    assert lines[0].startswith("bingham-fuser: ")
+    for text in case.says:
+        assert text in lines[0], lines[0]
+    assert r.code == case.code, lines[0]
+    assert r.left == set(case.files) | set(case.writes), f"stray output: {r.left - set(case.files)}"
+
+
+def test_verbose_shows_the_traceback_then_the_line(tmp_path: Path) -> None:
+    (tmp_path / "in.mcap").write_bytes(b"hello\n")
+    r = subprocess.run([sys.executable, "-m", "fuser.cli", "replay", "in.mcap", "-o", "out.mcap", "-v"], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert r.returncode == 2
+    assert r.stderr.startswith("Traceback") and "NotAnMcapError" in r.stderr
+    assert r.stderr.splitlines()[-1].startswith("bingham-fuser: in.mcap is not an MCAP")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["in.mcap"]
+
+
+def test_an_unexpected_failure_is_one_line_too(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
+    """A bug is reported as an internal error in one line (exit 1), with a pointer to --verbose."""
+    from fuser import cli
+
+    def broken(args, config):  # noqa: ARG001
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr(cli, "_cmd_replay", broken)
+    assert cli.main(["replay", str(LOG), "-o", "x.mcap"]) == 1
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["bingham-fuser: internal error: ZeroDivisionError: division by zero "
+                   "(run again with --verbose for the traceback, and please report it)"]
+
+
+IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
+    "mavlink-bad-port": (["run", "--mavlink", "udpin:0.0.0.0:99999", "--no-zenoh"], 2, ("99999", "0-65535")),
+    "can-no-channel": (["run", "--can", "virtual:", "--no-zenoh"], 2, ("INTERFACE:CHANNEL",)),
+    "run-without-inputs": (["run", "--no-zenoh"], 2, ("--mavlink",)),
+    "run-record-into-missing-folder": (["run", "--mavlink", "udpin:127.0.0.1:9", "-o", "no/rec.mcap"], 2, ("no/rec.mcap", "does not exist")),
+    "replay-into-missing-folder": (["replay", str(LOG), "-o", "no/out.mcap"], 2, ("no/out.mcap", "does not exist")),
+    "config-missing": (["replay", str(LOG), "-o", "out.mcap", "--config", "none.toml"], 2, ("none.toml",)),
+    "config-syntax": (["replay", str(LOG), "-o", "out.mcap", "--config", "syntax.toml"], 2, ("syntax.toml", "line 2")),
+    "config-unknown-key": (["replay", str(LOG), "-o", "out.mcap", "--config", "unknown.toml"], 2, ("mag_sigma",)),
+    "import-config": (["import", "x.ulg", "-o", "x.mcap", "--config", "c.toml"], 2, ("import does not take --config",)),
+    "import-missing-file": (["import", "x.ulg", "-o", "x.mcap"], 2, ("x.ulg",)),
+    "listen-no-zenoh": (["listen", "--no-zenoh"], 2, ("listen does not take --no-zenoh",)),
+    "listen-rate": (["listen", "--rate", "5"], 2, ("listen does not take --rate 5",)),
+    "replay-vehicle": (["replay", str(LOG), "-o", "out.mcap", "--vehicle", "x"], 2, ("replay does not take --vehicle x",)),
+    "sim-send-with-record": (["sim", "--send", "udpout:127.0.0.1:9", "-o", "sim.mcap"], 2, ("--record acts on a fuser running here",)),
+    "sim-send-with-fusion": (["sim", "--send", "udpout:127.0.0.1:9", "--rate", "50", "--no-mag"], 2, ("--rate, --no-mag act",)),
+    "sim-send-speed": (["sim", "--send", "udpout:127.0.0.1:9", "--speed", "4"], 2, ("--speed must be 1",)),
+    "sim-truth-without-send": (["sim", "--truth", "t.npz", "--garbage", "5"], 2, ("--truth, --garbage act only with --send",)),
+    "sim-bad-outage": (["sim", "--send", "udpout:127.0.0.1:9", "--outage", "soon"], 2, ("--outage", "AT:SECONDS")),
+    "import-text-named-ulg": (["import", "text.ulg", "-o", "x.mcap"], 2, ("cannot read text.ulg as a px4 log",)),
+    "abbreviation": (["sim", "--dur", "5"], 2, ("sim does not take --dur 5",)),
+    "unknown-command": (["fly"], 2, ("invalid choice: 'fly'",)),
+}
+
+
+@pytest.mark.parametrize("name", list(IN_PROCESS))
+def test_options_only_where_they_act(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
+    """The same one-line contract for the cases that fail while parsing (in-process: no interpreter start each)."""
+    from fuser.cli import main
+
+    argv, code, says = IN_PROCESS[name]
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "syntax.toml").write_text("[fuser]\nrate_hz = \n")
+    (tmp_path / "unknown.toml").write_text("[fuser]\nmag_sigma = 0.1\n")
+    (tmp_path / "text.ulg").write_text("hello\n")
+    if name == "import-text-named-ulg":
+        pytest.importorskip("pyulog")
+    before = {p.name for p in tmp_path.iterdir()}
+    assert main(argv) == code
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("bingham-fuser: "), err
+    for text in says:
+        assert text in err[0], err[0]
+    assert {p.name for p in tmp_path.iterdir()} == before
+
+
+def test_version(capsys: pytest.CaptureFixture) -> None:
+    from importlib.metadata import version
+
+    from fuser.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    assert capsys.readouterr().out.strip() == f"bingham-fuser {version('bingham-fuser')}"
+
+
+@pytest.mark.parametrize(("argv", "warning"), [
+    (["sim", "--scenario", "hover", "--duration", "30"], "--scenario hover is a flight of fixed length: it overrides --duration 30"),
+    (["run", "--mavlink", "udpin:0.0.0.0:14550", "--baud", "115200"], "--baud 115200 is ignored"),
+    (["run", "--can", "virtual:x", "--bitrate", "500000"], "--bitrate 500000 is ignored"),
+    (["listen", "--zenoh-connect", "tcp/127.0.0.1:7447", "--zenoh-listen", "tcp/127.0.0.1:7448"], "--zenoh-connect overrides --zenoh-listen"),
+])
+def test_an_option_overridden_by_another_is_warned_about(argv: list[str], warning: str, capsys: pytest.CaptureFixture) -> None:
+    from fuser import cli
+
+    args = cli._parser().parse_args(argv)
+    {"sim": cli._check_sim, "run": cli._check_run, "listen": cli._check_listen}[argv[0]](args)
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("bingham-fuser: warning: ") and warning in err[0], err
