@@ -451,7 +451,7 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         return run_sender(args, _stop_on_signal())
     if args.record:
         _check_output(args.record, "--record")
-    clock = WallClock.start() if args.speed > 0 else None
+    clock = WallClock.start(args.speed) if args.speed > 0 else None
     with ExitStack() as stack:
         pub = _publisher(stack, config, args)
         rec = None

@@ -73,8 +73,8 @@ def attitude_errors(
     ref_t, q_ref = _usable_reference(np.asarray(ref_t_ns, dtype=np.int64), np.asarray(q_ref, dtype=float))
     if ref_t.size < 2:
         inside = np.zeros(t_ns.shape, dtype=bool)
-        empty = np.zeros(0)
-        return AttitudeErrors(t_ns[inside], empty, empty, empty, empty)
+        empty, no_q = np.zeros(0), np.zeros((0, 4))
+        return AttitudeErrors(t_ns[inside], empty, empty, empty, empty, no_q, no_q)
     inside = (t_ns >= ref_t[0]) & (t_ns <= ref_t[-1])
     t_ns = t_ns[inside]
     q_est = np.asarray(q_est, dtype=float)[inside]

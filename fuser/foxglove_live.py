@@ -157,10 +157,11 @@ class FoxgloveLive:
         if isinstance(sample, AttitudeSample):
             self._body(receive_ns, REFERENCE_FRAME, sample.q_wxyz, "/reference/pose", TRUTH_OFFSET_NED_M)
 
-    def write_truth(self, t_ns: int, q_wxyz: Quat) -> None:
-        """A truth sink (the simulator): ``/truth/pose`` and the ``truth_body`` frame 1 m east."""
+    def write_truth(self, t_ns: int, q_wxyz: Quat, log_time_ns: int | None = None) -> None:
+        """A truth sink (the simulator): ``/truth/pose`` and the ``truth_body`` frame 1 m east, on the
+        run's timeline (``log_time_ns``, the estimates' clock; ``t_ns`` is the vehicle's own)."""
         if self._server is not None:
-            self._body(t_ns, TRUTH_FRAME, q_wxyz, "/truth/pose", TRUTH_OFFSET_NED_M)
+            self._body(t_ns if log_time_ns is None else log_time_ns, TRUTH_FRAME, q_wxyz, "/truth/pose", TRUTH_OFFSET_NED_M)
 
     def write_status(self, t_ns: int, status: dict[str, Any]) -> None:
         """A status sink: ``/status``."""

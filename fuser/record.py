@@ -308,8 +308,8 @@ class McapRecorder:
         full = self._encode("/estimate", est.to_dict())
         pose = self._encode("/pose", pose_in_frame(est.t_ns, est.q_wxyz))
         tf = self._encode("/tf", frame_transforms(est.t_ns, BODY_FRAME, est.q_wxyz))
-        if full is not None and pose is not None and tf is not None:
-            self.write_message("/estimate", est.t_ns, est.t_ns, full)
+        # one estimate, one verdict: its Foxglove views are written only with the estimate itself
+        if full is not None and pose is not None and tf is not None and self.write_message("/estimate", est.t_ns, est.t_ns, full):
             self.write_message("/pose", est.t_ns, est.t_ns, pose)
             self.write_message("/tf", est.t_ns, est.t_ns, tf)
 
@@ -324,8 +324,7 @@ class McapRecorder:
         log_time = t_ns if log_time_ns is None else log_time_ns
         pose = self._encode("/truth/pose", pose_in_frame(log_time, q_wxyz, TRUTH_OFFSET_NED_M))
         tf = self._encode("/tf", frame_transforms(log_time, TRUTH_FRAME, q_wxyz, TRUTH_OFFSET_NED_M))
-        if pose is not None and tf is not None:
-            self.write_message("/truth/pose", log_time, t_ns, pose)
+        if pose is not None and tf is not None and self.write_message("/truth/pose", log_time, t_ns, pose):
             self.write_message("/tf", log_time, t_ns, tf)
 
     def write_status(self, t_ns: int, status: dict[str, Any]) -> None:

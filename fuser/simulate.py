@@ -47,9 +47,10 @@ def run_sim(
 
     Truth goes to ``truth_sinks`` at most ``truth_rate_hz`` times a second
     (slerp between 100 Hz samples is far more accurate than any estimate).
-    A paced run receives on ``clock`` (default: measured now).
+    A paced run receives on ``clock`` (default: measured now, running ``speed``
+    times as fast as real time, so the loop ticks at its rate in flight time).
     """
-    clock = (clock or WallClock.start()) if speed > 0 else None
+    clock = (clock or WallClock.start(speed)) if speed > 0 else None
     start_mono = time.monotonic_ns()
     start_wall = clock.now_ns() if clock is not None else 0
     t0 = int(flight.t_ns[0])
@@ -60,10 +61,10 @@ def run_sim(
         if should_stop():
             break
         if clock is not None:
-            due = start_wall + round((t_ns - t0) / speed)
+            due = start_wall + (t_ns - t0)
             while (now := clock.now_ns()) < due:
                 pipeline.advance(now)
-                time.sleep(min((due - now) / 1e9, 0.002))
+                clock.sleep_until(due, 0.002)
             received = clock.now_ns()
         else:
             received = t_ns + SIM_LINK_LATENCY_NS

@@ -119,6 +119,10 @@ def test_spoofed_time_packet_cannot_kill_the_recorder(tmp_path: Path) -> None:
         assert t_start <= msgs[0][0] and msgs[-1][0] <= t_end, topic
 
 
+PACED_S = 6.0
+"""Seconds of the paced (real-time) simulated flight."""
+
+
 @pytest.fixture(scope="module")
 def paced_sim(tmp_path_factory: pytest.TempPathFactory) -> dict:
     folder = tmp_path_factory.mktemp("paced")
@@ -126,7 +130,7 @@ def paced_sim(tmp_path_factory: pytest.TempPathFactory) -> dict:
     endpoint = f"tcp/127.0.0.1:{port}"
     received: list = []
     t0, m0 = time.time_ns(), time.monotonic_ns()
-    proc = subprocess.Popen(FUSER + ["sim", "--scenario", "hover", "--speed", "4", "-o", "sim.mcap", "--vehicle", "wallclock",
+    proc = subprocess.Popen(FUSER + ["sim", "--duration", str(PACED_S), "-o", "sim.mcap", "--vehicle", "wallclock",
                                      "--zenoh-listen", endpoint],
                             cwd=folder, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
@@ -156,8 +160,8 @@ def test_paced_sim_records_every_channel_on_the_runs_unix_timeline(paced_sim: di
         assert all(d["timestamp"]["sec"] * 10**9 + d["timestamp"]["nsec"] == t for t, _, d in records[topic])
     # the truth keeps the vehicle's clock as its publish time, so it still scores against sensor_t_ns
     publish_s = [p / 1e9 for _, p, _ in records["/truth/pose"]]
-    assert 11.0 < max(publish_s) - min(publish_s) < 13.0 and max(publish_s) < 60  # the 12-s flight on its own clock
-    assert "error against truth" in paced_sim["stdout"]
+    assert PACED_S - 1.0 < max(publish_s) - min(publish_s) < PACED_S + 1.0 and max(publish_s) < 60  # the flight on its own clock
+    assert "error against simulator truth" in paced_sim["stdout"]
 
 
 def test_paced_sim_publishes_unix_times_on_zenoh(paced_sim: dict) -> None:
@@ -178,3 +182,16 @@ def test_replay_of_a_live_recording_keeps_its_times_and_bytes(paced_sim: dict, t
     assert [t for t, _, _ in again["/input/imu"]] == [t for t, _, _ in paced_sim["records"]["/input/imu"]]
     t0, t1 = paced_sim["unix"]
     assert all(t0 <= t <= t1 for t, _, _ in again["/estimate"])
+
+
+def test_a_faster_paced_sim_still_ticks_at_the_loop_rate_in_flight_time() -> None:
+    """At --speed 4 the run's clock runs 4x: one estimate per 1/rate_hz of *flight* time, not of wall time."""
+    from drivers.scenarios import flight as make_flight
+    from fuser.pipeline import Pipeline
+    from fuser.simulate import run_sim
+
+    flight = make_flight("full", seed=1, imu_rate_hz=200.0, duration_s=4.0)
+    flight_s = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
+    config = FuserConfig()
+    run = run_sim(Pipeline(config), flight, speed=4.0)
+    assert abs(run.estimates - config.rate_hz * flight_s) <= 3, (run.estimates, flight_s)

@@ -248,7 +248,9 @@ def test_records_that_cannot_be_stored_are_counted_and_the_rest_is_intact(tmp_pa
         stored = [(c.topic, m.log_time, json.loads(m.data)) for _, c, m in reader.iter_messages(log_time_order=True)]
     record(tmp_path / "good.mcap", good, chunk_size=2048)
     assert path.read_bytes() == (tmp_path / "good.mcap").read_bytes()
-    assert len(stored) == read_log(path).records == len(expected_messages(good)) + sum(m == "write_estimate" for m, _ in good)
+    # beside each estimate its /pose and /tf, beside each truth its /tf
+    extra = sum(2 if m == "write_estimate" else m == "write_truth" for m, _ in good)
+    assert len(stored) == read_log(path).records == len(expected_messages(good)) + extra
 
 
 def test_recorder_process_outlives_records_it_cannot_store(tmp_path: Path) -> None:

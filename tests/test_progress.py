@@ -10,7 +10,7 @@ import numpy as np
 from mcap.reader import make_reader
 
 from fuser.config import FuserConfig
-from fuser.importers import SensorData, write_mcap
+from fuser.importers import ImuStream, SensorData, write_mcap
 from fuser.progress import progress_bar
 from fuser.record import INPUT_TOPICS
 from fuser.replay import replay
@@ -66,7 +66,7 @@ def test_import_draws_the_bar_over_every_message(tmp_path: Path) -> None:
     n, m = 300, 40
     t = np.arange(n, dtype=np.int64) * 5_000_000 + 1_000_000_000
     data = SensorData(
-        t_ns=t, gyro=np.zeros((n, 3)), accel=np.tile([0.0, 0.0, -9.81], (n, 1)), mag=None,
+        imus=[ImuStream(0, t, np.zeros((n, 3)), np.tile([0.0, 0.0, -9.81], (n, 1)), None)],
         ref_t_ns=t[:: n // m][:m], ref_q=np.tile([1.0, 0.0, 0.0, 0.0], (m, 1)), reference="EKF2 (test)", attribution="test",
         source="test", mag_field_ned_gauss=(0.21, 0.0, 0.43), attitude_stream=True,
     )
