@@ -14,6 +14,14 @@ from .samples import Sample
 LOG_INTERVAL_S = 10.0
 
 
+class SourceError(Exception):
+    """A source cannot be opened as configured (bad connection string, unknown CAN interface, unreadable key).
+
+    Raised at construction, never later (as python-can's ``can.exceptions`` are), with a message that
+    names what is wrong and what is accepted; the cause is chained as ``__cause__``.
+    """
+
+
 class ReasonLog:
     """Counts events by reason into ``stats`` and logs each reason at most once per interval.
 

@@ -10,11 +10,20 @@ NS_PER_MS = 1_000_000
 NS_PER_US = 1_000
 _U32_WRAP_NS = (1 << 32) * NS_PER_MS
 DEFAULT_MAX_GAP_NS = 60 * 1_000_000_000
+MAX_TIME_NS = 1 << 62
+"""Every accepted time (the sender's, and what the stream makes of it) lies in [0, MAX_TIME_NS):
+year 2116 on the Unix epoch, and a quarter of the uint64 nanoseconds MCAP stores, so that no
+sum of a time and an offset downstream can overflow the recorder."""
 
 
 class StreamClock:
     """Monotonic time line of one stream (one source, one message type).
 
+    Every time outside [0, MAX_TIME_NS) is refused as ``time_out_of_range``.
+    The first time of a stream is compared with ``reference_ns``, the latest
+    time the decoder accepted on the same clock of the same sender (if it has
+    one): further than ``max_gap_ns`` from it, it is refused as
+    ``time_implausible`` unless the next sample confirms the new time line.
     A step forward of at most ``max_gap_ns`` is accepted as it is. A step of
     zero is a ``duplicate``. Any other step (backwards, or forward by more than
     ``max_gap_ns``) is refused as ``time_backwards`` / ``time_jump`` unless the
@@ -34,24 +43,42 @@ class StreamClock:
         self._max_gap = max_gap_ns
         self._on_event = on_event
 
-    def stamp(self, raw_ns: int) -> int:
+    @property
+    def started(self) -> bool:
+        """Whether the stream has accepted a sample yet."""
+        return self._last_raw is not None
+
+    def stamp(self, raw_ns: int, reference_ns: int | None = None) -> int:
         """Return the monotonic time of a sample stamped ``raw_ns`` by its sender, or raise ``Rejected``."""
+        if not 0 <= raw_ns < MAX_TIME_NS or raw_ns + self._offset >= MAX_TIME_NS:
+            raise Rejected("time_out_of_range", f"{raw_ns} ns")
         last = self._last_raw
         if last is not None:
             step = raw_ns - last
             if step <= 0 or step > self._max_gap:
                 self._discontinuity(raw_ns, last, step)
+        elif reference_ns is not None and abs(raw_ns - reference_ns) > self._max_gap:
+            pending = self._pending
+            if pending is None or not 0 < raw_ns - pending <= self._max_gap:
+                self._pending = raw_ns
+                raise Rejected("time_implausible", f"first time {raw_ns} ns, {raw_ns - reference_ns} ns from the sender's")
         self._last_raw = raw_ns
         self._pending = None
         return raw_ns + self._offset
 
-    def stamp_ms_u32(self, time_boot_ms: int) -> int:
-        """Like ``stamp`` for a uint32 millisecond counter, unwrapping its 49.7-day wrap-around."""
+    def unwrap_ms_u32(self, time_boot_ms: int) -> int:
+        """Nanoseconds of a uint32 millisecond counter, unwrapped past its 49.7-day wrap-around
+        relative to this stream's last time (pass the result to ``stamp``)."""
         raw = time_boot_ms * NS_PER_MS + self._wrap_ns
         last = self._last_raw
         if last is not None and last - raw > _U32_WRAP_NS // 2:
             raw += _U32_WRAP_NS
-        t = self.stamp(raw)
+        return raw
+
+    def stamp_ms_u32(self, time_boot_ms: int, reference_ns: int | None = None) -> int:
+        """Like ``stamp`` for a uint32 millisecond counter (see ``unwrap_ms_u32``)."""
+        raw = self.unwrap_ms_u32(time_boot_ms)
+        t = self.stamp(raw, reference_ns)
         self._wrap_ns = raw - time_boot_ms * NS_PER_MS
         return t
 

@@ -13,6 +13,7 @@ Every setting can also come from a TOML file (``--config``); flags win.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import signal
 import sys
@@ -43,6 +44,16 @@ def _zenoh(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT", help="listen endpoint (repeatable; default tcp/127.0.0.1:7447)")
     g.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT", help="router or peer to connect to (repeatable)")
     g.add_argument("--no-zenoh", action="store_true", help="do not publish")
+
+
+def _link(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("MAVLink link", "which vehicle to fuse and how its frames are authenticated (see drivers/README.md)")
+    g.add_argument("--system", type=int, metavar="ID", help="vehicle system id (default: the first autopilot heard)")
+    g.add_argument("--component", type=int, metavar="ID", help="vehicle component id (default: that autopilot's)")
+    g.add_argument("--any-sender", action="store_true", help="use every sender's data, not only the first autopilot's")
+    g.add_argument("--signing-key-file", metavar="FILE", help="MAVLink 2 signing key (32 raw bytes, or a passphrase hashed "
+                   "with SHA-256 as MAVProxy does): unsigned and wrongly signed frames are refused")
+    g.add_argument("--dialect", metavar="NAME", help="pymavlink dialect (default: ardupilotmega)")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -83,6 +94,7 @@ def _parser() -> argparse.ArgumentParser:
                                    "socketcan:can0, slcan:/dev/ttyACM0, virtual:test.")
     _common(p)
     _zenoh(p)
+    _link(p)
     p.add_argument("--mavlink", action="append", default=[], metavar="CONN", help="MAVLink connection (repeatable)")
     p.add_argument("--baud", type=int, default=57600, help="serial baud rate for MAVLink (default: 57600)")
     p.add_argument("--can", action="append", default=[], metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
@@ -95,6 +107,7 @@ def _parser() -> argparse.ArgumentParser:
                        description="Replay a log (MCAP recorded by bingham-fuser, or a MAVLink .tlog) through the same loop on "
                                    "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes.")
     _common(p)
+    _link(p)
     p.add_argument("log", help="input log (.mcap or .tlog)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
 
@@ -134,7 +147,11 @@ def _config(args: argparse.Namespace) -> FuserConfig:
             overrides[name] = tuple(getattr(args, name))
     if getattr(args, "attitude_sigma_deg", None) is not None:
         overrides["attitude_sigma_deg"] = args.attitude_sigma_deg
-    return load_config(args.config, **overrides)
+    config = load_config(args.config, **overrides)
+    link = {k: getattr(args, k) for k in ("system", "component", "signing_key_file", "dialect") if getattr(args, k, None) is not None}
+    if getattr(args, "any_sender", False):
+        link["lock_first_autopilot"] = False
+    return config.replace(link=dataclasses.replace(config.link, **link)) if link else config
 
 
 def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
@@ -189,6 +206,7 @@ def _estimate_sinks(pub: Any, rec: Any) -> list:
 
 def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
     from drivers.sources import DroneCanSource, MavlinkSource
+    from fuser.inputs import source_report
     from fuser.live import LiveRunner
     from fuser.pipeline import Pipeline
     from fuser.record import RecorderProcess
@@ -200,7 +218,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
         sources: dict[str, Any] = {}
         for conn in args.mavlink:
             options = {"baud": args.baud} if conn.startswith("/dev/") or conn.upper().startswith("COM") else {}
-            sources[f"mavlink:{conn}"] = stack.enter_context(MavlinkSource(conn, **options))
+            sources[f"mavlink:{conn}"] = stack.enter_context(MavlinkSource(conn, config.link, **options))
         for spec in args.can:
             interface, _, channel = spec.partition(":")
             if not channel:
@@ -230,6 +248,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
         print(f"run: fusing {', '.join(sources)} at {config.rate_hz:g} Hz; Ctrl-C to stop", file=sys.stderr)
         status = runner.run(args.duration)
     print(f"run: {status['estimates']} estimates; loop {status['loop']}; latency {status['latency']}")
+    _print_inputs(source_report(name, src) for name, src in sources.items())
     return 0
 
 
@@ -241,6 +260,7 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
           f"({summary.samples_per_s:,.0f} samples/s); {args.output}")
     if summary.counters:
         print("counters: " + ", ".join(f"{k}={v}" for k, v in sorted(summary.counters.items())))
+    _print_inputs([summary.inputs] if summary.inputs else [])
     _print_scores(args.output)
     return 0
 
@@ -288,6 +308,14 @@ def _cmd_report(args: argparse.Namespace, config: FuserConfig) -> int:
     for line in write_report(args.log, Path(args.output)):
         print(line)
     return 0
+
+
+def _print_inputs(reports) -> None:
+    """What each input gave, by reason, and a warning on stderr where little of it reached the loop."""
+    for report in reports:
+        print("\n".join(report.lines()))
+        if (warning := report.warning()) is not None:
+            print(warning, file=sys.stderr)
 
 
 def _print_scores(path: str) -> None:

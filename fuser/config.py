@@ -8,6 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from drivers.link import LinkSettings
+
 __all__ = ["FuserConfig", "load_config"]
 
 
@@ -120,6 +122,8 @@ class FuserConfig:
     zenoh_connect: tuple[str, ...] = ()
     record: str | None = None
     """MCAP file to record inputs and estimates to (None: do not record)."""
+    link: LinkSettings = LinkSettings()
+    """MAVLink vehicle selection, signing and dialect (``[fuser.link]``; see drivers/link.py)."""
 
     def replace(self, **changes: Any) -> FuserConfig:
         """A copy with some settings changed (None values are ignored)."""
@@ -143,4 +147,6 @@ def load_config(path: str | Path | None, **overrides: Any) -> FuserConfig:
     for key, value in list(values.items()):
         if isinstance(value, list):
             values[key] = tuple(value)
+        elif key == "link":
+            values[key] = LinkSettings.from_table(value)
     return FuserConfig(**values).replace(**overrides)

@@ -20,7 +20,7 @@ from typing import Iterator, TextIO
 from drivers.samples import Sample
 from fuser.codec import decode_sample
 from fuser.config import FuserConfig
-from fuser.inputs import tlog_inputs
+from fuser.inputs import InputReport, TlogInputs
 from fuser.pipeline import Pipeline
 from fuser.record import INPUT_TOPICS, LogContents, McapRecorder, read_log
 
@@ -36,6 +36,8 @@ class ReplaySummary:
     estimates: int
     seconds: float
     counters: dict[str, int]
+    inputs: InputReport | None = None
+    """A .tlog's account: decodable IMU messages, those the loop took, everything refused by reason."""
 
     @property
     def samples_per_s(self) -> float:
@@ -82,10 +84,12 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     with McapRecorder(out, metadata={"source_log": Path(log).name}) as recorder:
         pipeline = Pipeline(config, [], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
         contents = None if str(log).endswith(".tlog") else read_log(log)
-        if contents is None:
+        tlog = TlogInputs(log, config.link) if contents is None else None
+        if tlog is not None:
             pipeline.inputs.append(recorder.write_sample)
-        for sample, receive_ns in (tlog_inputs(log) if contents is None else _copied_inputs(contents, pipeline, recorder)):
-            pipeline.feed(sample, receive_ns)
+        feed = pipeline.feed if tlog is None else tlog.feeder(pipeline)
+        for sample, receive_ns in (_copied_inputs(contents, pipeline, recorder) if tlog is None else tlog):
+            feed(sample, receive_ns)
             samples += 1
             first_ns = receive_ns if first_ns is None else first_ns
             if samples % 4096 == 0:
@@ -96,4 +100,4 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
                 recorder.write_message(*truth)
     bar.done()
     counters = dict(pipeline.loop.counters) | dict(pipeline.loop.model.counters)
-    return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters)
+    return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters, None if tlog is None else tlog.report())

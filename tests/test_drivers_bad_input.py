@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mav_common
 
-from drivers import DroneCanDecoder, MavlinkDecoder, SourceId
+from drivers import DroneCanDecoder, LinkSettings, MavlinkDecoder, SourceId
 from drivers.dronecan_decode import RAW_IMU, data_type
 from drivers.timebase import StreamClock
 from drivers.validation import Rejected
@@ -49,7 +49,7 @@ GOOD_T = 2_000_000_000
         (imu_frame(1_000_000)[:20] + b"\x55" + imu_frame(1_000_000)[21:], "bad_crc"),
         (b"\xfd\x30\x00\x00\x00\x01\x01\x05\x00\x00" + b"\x00" * 3, "bad_crc"),  # false header in garbage
         (b"\xfd\x09\x04\x00\x00\x01\x01\x1e\x00\x00" + b"\x00" * 11, "bad_frame"),  # unknown incompat flag
-        (bytes(apm.MAVLink_ahrs_message(0, 0, 0, 0, 0, 0, 0).pack(apm.MAVLink(None))), "unknown_message"),
+        (b"\xfd\x03\x00\x00\x07\x01\x01\xee\xff\x00\x01\x02\x03\x12\x34", "unknown_message"),  # id 65518: in no dialect
         (imu_frame(1_000_000, gyro=(math.nan, 0.0, 0.0)), "non_finite"),
         (imu_frame(1_000_000, accel=(0.0, math.inf, 0.0)), "non_finite"),
         (imu_frame(1_000_000, gyro=(0.0, 0.0, 40.0)), "gyro_out_of_range"),
@@ -62,6 +62,14 @@ def test_mavlink_bad_input_is_counted_and_the_next_frame_decodes(bad, reason):
     assert times_of(decoder.feed(bad + GOOD)) == [GOOD_T]
     assert decoder.stats[reason] >= 1
     assert decoder.stats["accepted"] == 1
+
+
+@pytest.mark.parametrize("dialect, reason", [("ardupilotmega", "ignored"), ("common", "unknown_message")])
+def test_ardupilot_messages_are_ignored_in_their_dialect_and_unknown_in_common(dialect, reason):
+    ahrs = bytes(apm.MAVLink_ahrs_message(0, 0, 0, 0, 0, 0, 0).pack(apm.MAVLink(None, srcSystem=1, srcComponent=1)))
+    decoder = MavlinkDecoder(LinkSettings(lock_first_autopilot=False, dialect=dialect))
+    assert times_of(decoder.feed(ahrs + GOOD)) == [GOOD_T]
+    assert decoder.stats[reason] == 1
 
 
 def test_quaternion_far_from_unit_norm_is_refused():
