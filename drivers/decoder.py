@@ -74,6 +74,8 @@ class Decoder:
         self._max_streams = max_streams
         self._senders: dict[Hashable, Sender] = {}
         self._streams: dict[tuple[Hashable, int, int, int], Stream] = {}
+        self._receive_ns: int | None = None
+        """Receive time of the input being decoded, where the caller gives one (see ``StreamClock``)."""
 
     def _sender(self, key: Hashable) -> Sender:
         """State of one sender, created on first use; ``Rejected`` once ``max_senders`` are known."""
@@ -103,7 +105,7 @@ class Decoder:
         accepted time becomes that latest. A boot-clock time also settles a pending sequence gap.
         """
         reference = self._settle(stream, raw_ns, clock)
-        t = stream.clock.stamp(raw_ns, reference)
+        t = stream.clock.stamp(raw_ns, reference, self._receive_ns)
         stream.sender.latest_ns[clock] = raw_ns
         return t
 
@@ -111,7 +113,7 @@ class Decoder:
         """``_stamp`` for a uint32 millisecond boot time, unwrapped past its 49.7-day wrap-around."""
         raw = stream.clock.unwrap_ms_u32(time_boot_ms)
         reference = self._settle(stream, raw, BOOT_CLOCK)
-        t = stream.clock.stamp_ms_u32(time_boot_ms, reference)
+        t = stream.clock.stamp_ms_u32(time_boot_ms, reference, self._receive_ns)
         stream.sender.latest_ns[BOOT_CLOCK] = raw
         return t
 

@@ -182,7 +182,7 @@ class DroneCanDecoder(Decoder):
         """Monotonic time of a transfer stamped ``usec`` on the node's time base (0: none), and its stream."""
         if not 0.0 <= t_rx < MAX_TIME_NS / 1e9:  # NaN fails too
             raise Rejected("time_out_of_range", f"receive time {t_rx!r} s")
-        rx_ns = round(t_rx * 1e9)
+        rx_ns = self._receive_ns = round(t_rx * 1e9)
         stream = self._stream(kind, node, 0, instance)
         sender = stream.sender
         if usec:

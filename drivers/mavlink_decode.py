@@ -68,6 +68,8 @@ _ANGLE_LIMIT = 7.0  # radians; MAVLink Euler angles are within +-pi
 EPOCH_CLOCK = "epoch"
 EPOCH_MIN_US = 10**15
 """A ``time_usec`` this large is Unix time, not time since boot (31.7 years of uptime)."""
+REORDER_MAX = 16
+"""A step back in a sender's sequence numbers by at most this much is a reordered frame, not a restart."""
 IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", *SCALED_IMU_INSTANCE)
 """The message types that carry an IMU sample."""
 GPS_INPUT_IGNORE_ALT, GPS_INPUT_IGNORE_VEL_HORIZ, GPS_INPUT_IGNORE_VEL_VERT, GPS_INPUT_IGNORE_SPEED_ACCURACY = 1, 8, 16, 32
@@ -123,12 +125,18 @@ class MavlinkDecoder(Decoder):
         for name in SCALED_IMU_INSTANCE:
             self._handlers[getattr(mod, f"MAVLink_{name.lower()}_message")] = self._scaled_imu
 
-    def feed(self, data: bytes) -> list[Sample]:
-        """Samples completed by ``data``, any split of a byte stream (serial, TCP)."""
+    def feed(self, data: bytes, receive_ns: int | None = None) -> list[Sample]:
+        """Samples completed by ``data``, any split of a byte stream (serial, TCP).
+
+        ``receive_ns``, the receiver's time of ``data`` where known, keeps a stream's time line
+        continuous in receive time across a sender's reboot (see ``StreamClock``).
+        """
+        self._receive_ns = receive_ns
         return self._decode_all(self.frames.parse(data))
 
-    def feed_datagram(self, data: bytes) -> list[Sample]:
+    def feed_datagram(self, data: bytes, receive_ns: int | None = None) -> list[Sample]:
         """Samples of ``data``, a whole datagram or log record: a frame cut short at its end is ``truncated``."""
+        self._receive_ns = receive_ns
         return self._decode_all(self.frames.parse(data, complete=True))
 
     def _decode_all(self, messages: list[Any]) -> list[Sample]:
@@ -183,15 +191,19 @@ class MavlinkDecoder(Decoder):
     def _sequence(self, sender: Sender, seq: int) -> None:
         """Note the frames missing before ``seq``: a step forward of 2-128 misses 1-127 frames.
 
-        A repeated number (a duplicate, or exactly 256 frames lost) and a step back (reordering,
-        or a restart) count nothing; a gap waits as ``pending_lost`` until a boot time from the
-        sender shows whether it restarted (see ``Decoder._settle``).
+        A repeated number (a duplicate, or exactly 256 frames lost) counts nothing; so does a step
+        back: by up to REORDER_MAX a late frame (the sequence stays where it was), further a restart
+        or a jump (it continues from ``seq``). A gap waits as ``pending_lost`` until a boot time
+        from the sender shows whether it restarted (see ``Decoder._settle``).
         """
         last = sender.last_seq
-        sender.last_seq = seq
         if last is None:
+            sender.last_seq = seq
             return
         gap = (seq - last - 1) & 0xFF
+        if gap >= 256 - REORDER_MAX:  # 255: the same number again; 240-254: a frame overtaken on the way
+            return
+        sender.last_seq = seq
         if 0 < gap < 128:
             self.stats["lost"] += sender.pending_lost
             sender.pending_lost = gap

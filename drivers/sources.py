@@ -100,7 +100,7 @@ class MavlinkSource(SampleSource):
             if data:
                 woken = False
                 read += len(data)
-                samples += self._feed(data)
+                samples += self._feed(data, time.monotonic_ns())
                 if samples:
                     break
                 continue

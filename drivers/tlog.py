@@ -191,7 +191,7 @@ class TlogSource(SampleSource):
     def _next(self) -> list[tuple[Sample, int]]:
         """The samples of the next records that give any (empty, and ``exhausted``, at the end)."""
         for receive_ns, packet in self._records:
-            samples = self.decoder.feed_datagram(packet)
+            samples = self.decoder.feed_datagram(packet, receive_ns)
             if samples and receive_ns is None:  # unframed bytes before the first record: no time to give them
                 self.stats["no_receive_time"] += len(samples)
             elif samples:
