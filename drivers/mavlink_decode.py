@@ -91,12 +91,20 @@ class MavlinkDecoder(Decoder):
 
     ``link`` chooses the vehicle, the signing key and the dialect (``drivers.link``); without one
     every sender is used, in the ``ardupilotmega`` dialect, unsigned (tests, the simulator, imports).
-    ``signing_timestamp``: see :class:`~drivers.mavlink_frames.FrameParser`. ``received`` counts
-    the valid messages of every type seen (every sender, used or not), ``used`` those that became
+    ``signing_timestamp``: see :class:`~drivers.mavlink_frames.FrameParser`. ``screen``: once the
+    vehicle is chosen, count other senders' frames without decoding them (a flood costs a header
+    read per frame); a log reader turns it off to count every sender's messages. ``received``
+    counts the valid messages of every type decoded (used or not), ``used`` those that became
     samples; ``stats`` counts ``accepted`` and every reason a frame or message was not used.
     """
 
-    def __init__(self, link: LinkSettings | None = None, signing_timestamp: int | None = None, **decoder_options: Any) -> None:
+    def __init__(
+        self,
+        link: LinkSettings | None = None,
+        signing_timestamp: int | None = None,
+        screen: bool = True,
+        **decoder_options: Any,
+    ) -> None:
         super().__init__("mavlink", log, **decoder_options)
         self.link = link if link is not None else LinkSettings(lock_first_autopilot=False)
         mod = dialect_module(self.link.dialect)
@@ -124,6 +132,14 @@ class MavlinkDecoder(Decoder):
         }
         for name in SCALED_IMU_INSTANCE:
             self._handlers[getattr(mod, f"MAVLink_{name.lower()}_message")] = self._scaled_imu
+        self._screen = screen
+        self._set_screen()
+
+    def _set_screen(self) -> None:
+        """Let the frame parser skip other senders' frames once the vehicle is chosen (see FrameParser)."""
+        system, component = self.system, self.component
+        if self._screen and system is not None:
+            self.frames.screen = lambda s, c: s == system and (component is None or c == component)
 
     def feed(self, data: bytes, receive_ns: int | None = None) -> list[Sample]:
         """Samples completed by ``data``, any split of a byte stream (serial, TCP).
@@ -186,6 +202,7 @@ class MavlinkDecoder(Decoder):
     def _lock(self, hb: Any) -> None:
         self._awaiting_autopilot = False
         self.system, self.component = hb.get_srcSystem(), hb.get_srcComponent()
+        self._set_screen()
         log.info("vehicle: system %d component %d (autopilot %d, type %d)", self.system, self.component, hb.autopilot, hb.type)
 
     def _sequence(self, sender: Sender, seq: int) -> None:

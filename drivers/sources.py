@@ -80,14 +80,14 @@ class MavlinkSource(SampleSource):
     ``connection_options`` go to ``mavutil.mavlink_connection``). ``link`` chooses the vehicle,
     the signing key and the dialect. The connection only moves bytes: the source's own decoder
     frames them (every frame of a datagram), so pymavlink's per-message-type cache
-    (``mavfile.messages``) and its parser buffer never grow.
+    (``mavfile.messages``) and its parser buffer never grow. UDP is read as a byte stream, as
+    pymavlink reads it, so a bridge that splits frames across datagrams loses nothing.
     """
 
     def __init__(self, connection_string: str, link: LinkSettings | None = None, baud: int = 57600, **connection_options: Any) -> None:
         self.decoder = MavlinkDecoder(LinkSettings() if link is None else link)
         self.stats = self.decoder.stats
         self.connection = open_mavlink(connection_string, baud, **connection_options)
-        self._feed = self.decoder.feed_datagram if isinstance(self.connection, (mavutil.mavudp, mavutil.mavmcast)) else self.decoder.feed
 
     def poll(self, timeout: float) -> list[Sample]:
         """Samples read within ``timeout`` s: returns as soon as some have arrived, or after MAX_POLL_BYTES."""
@@ -100,7 +100,7 @@ class MavlinkSource(SampleSource):
             if data:
                 woken = False
                 read += len(data)
-                samples += self._feed(data, time.monotonic_ns())
+                samples += self.decoder.feed(data, time.monotonic_ns())
                 if samples:
                     break
                 continue

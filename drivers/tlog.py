@@ -166,11 +166,12 @@ class TlogSource(SampleSource):
 
     ``samples()`` yields ``(sample, receive_ns)`` in file order; ``poll`` returns the next samples
     and sets ``exhausted`` at the end. ``stats`` counts everything the live decoder counts, and the
-    reader's record faults. Signatures are checked from a signing clock of zero (the log is older than now).
+    reader's record faults. Signatures are checked from a signing clock of zero (the log is older than
+    now); every sender's messages are decoded, so ``decoder.received`` counts them all.
     """
 
     def __init__(self, path: str | Path, link: LinkSettings | None = None) -> None:
-        self.decoder = MavlinkDecoder(LinkSettings() if link is None else link, signing_timestamp=0)
+        self.decoder = MavlinkDecoder(LinkSettings() if link is None else link, signing_timestamp=0, screen=False)
         self.stats = self.decoder.stats
         try:
             with open(path, "rb") as f:

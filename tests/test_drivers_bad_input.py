@@ -79,9 +79,10 @@ def test_quaternion_far_from_unit_norm_is_refused():
     assert decoder.stats["quaternion_norm"] == 1
 
 
-def test_valid_packet_right_after_a_false_header_is_not_lost():
+@pytest.mark.parametrize("link", [None, LinkSettings(system=1, component=1)])
+def test_valid_packet_right_after_a_false_header_is_not_lost(link):
     # 0xFD followed by a length of 0x40 would swallow the next 76 bytes in pymavlink alone.
-    decoder = MavlinkDecoder()
+    decoder = MavlinkDecoder(link)
     stream = b"\xfd\x40" + imu_frame(1_000_000) + imu_frame(1_002_500, seq=1)
     assert times_of(decoder.feed(stream)) == [1_000_000_000, 1_002_500_000]
 
@@ -139,11 +140,13 @@ def test_each_reason_is_logged_once_per_interval(caplog):
 @given(
     garbage=st.lists(st.binary(max_size=120), min_size=4, max_size=4),
     cuts=st.lists(st.integers(0, 600), max_size=6),
+    locked=st.booleans(),
 )
-def test_mavlink_fuzz_garbage_between_valid_frames(garbage, cuts):
+def test_mavlink_fuzz_garbage_between_valid_frames(garbage, cuts, locked):
+    """Any split, any garbage; with the vehicle chosen (other senders' frames screened) as without."""
     valid = [imu_frame(1_000_000 + 2500 * i, seq=i) for i in range(3)]
     stream = garbage[0] + valid[0] + garbage[1] + valid[1] + garbage[2] + valid[2] + garbage[3] + b"\x00" * 300
-    decoder = MavlinkDecoder()
+    decoder = MavlinkDecoder(LinkSettings(system=1, component=1) if locked else None)
     out = []
     start = 0
     for cut in sorted(cuts) + [len(stream)]:  # any split of the stream into reads

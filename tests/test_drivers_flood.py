@@ -119,3 +119,13 @@ def test_unfinished_can_transfers_are_capped():
             decoder.feed(can.Message(arbitration_id=can_id, data=bytes(7) + b"\x80", is_extended_id=True, timestamp=1.0))
     assert len(decoder._partials) == MAX_PENDING_TRANSFERS
     assert decoder.stats["too_many_transfers"] == 127 * 4 - MAX_PENDING_TRANSFERS
+
+
+def test_a_false_header_claiming_another_sender_swallows_nothing():
+    """Other senders' frames are skipped whole only when a frame starts right after them; this false
+    header (payload 16 bytes, system 9) ends inside the real frame, so only its magic byte is stepped over."""
+    decoder = MavlinkDecoder(LinkSettings(system=1, component=1))
+    false_header = b"\xfd\x10\x00\x00\x00\x09\x01\x00\x00\x00"
+    out = decoder.feed(false_header + highres(1, 1, 0, 2_000_000))
+    assert [s.t_ns for s in out] == [2_000_000_000]
+    assert decoder.stats["garbage"] >= 1 and decoder.stats["other_sender"] == 0
