@@ -109,8 +109,8 @@ class MavlinkDecoder(Decoder):
         self.link = link if link is not None else LinkSettings(lock_first_autopilot=False)
         mod = dialect_module(self.link.dialect)
         self.frames = FrameParser(mod, self._note, self.link.signing_key(), signing_timestamp)
-        self.received: Counter[str] = Counter()
-        self.used: Counter[str] = Counter()
+        self._received: dict[type, int] = {}
+        self._used: dict[type, int] = {}
         self.system = self.link.system
         """System id data is taken from (None: any, or not chosen yet)."""
         self.component = self.link.component
@@ -155,40 +155,51 @@ class MavlinkDecoder(Decoder):
         self._receive_ns = receive_ns
         return self._decode_all(self.frames.parse(data, complete=True))
 
-    def _decode_all(self, messages: list[Any]) -> list[Sample]:
-        samples = []
-        for msg in messages:
-            sample = self._decode(msg)
-            if sample is not None:
-                samples.append(sample)
-        return samples
+    @property
+    def received(self) -> Counter[str]:
+        """Valid messages decoded, by type name (every sender, used or not)."""
+        return Counter({kind.msgname: n for kind, n in self._received.items()})
 
-    def _decode(self, msg: Any) -> Sample | None:
-        """Sample of one valid message, or None (counted: not from the vehicle, ignored, refused)."""
-        self.received[msg._type] += 1
-        kind = type(msg)
-        if self._awaiting_autopilot:
-            if kind is not self._heartbeat or not self._is_autopilot(msg):
-                self.stats["no_vehicle_yet"] += 1
-                return None
-            self._lock(msg)
-        system, component = msg.get_srcSystem(), msg.get_srcComponent()
-        if (self.system is not None and system != self.system) or (self.component is not None and component != self.component):
-            self.stats["other_sender"] += 1
-            return None
-        handler = self._handlers.get(kind)
-        try:
-            self._sequence(self._sender((system, component)), msg.get_seq())
-            if handler is None:
-                self.stats["ignored"] += 1
-                return None
-            sample = handler(msg)
-        except Rejected as rejected:
-            self._note(rejected.reason, f"{msg._type}: {rejected.detail}")
-            return None
-        self.stats["accepted"] += 1
-        self.used[msg._type] += 1
-        return sample
+    @property
+    def used(self) -> Counter[str]:
+        """Messages that became samples, by type name."""
+        return Counter({kind.msgname: n for kind, n in self._used.items()})
+
+    def _decode_all(self, messages: list[Any]) -> list[Sample]:
+        """Samples of valid messages; the others are counted (not from the vehicle, ignored, refused)."""
+        samples = []
+        stats, received, senders, handlers = self.stats, self._received, self._senders, self._handlers
+        for msg in messages:
+            kind = type(msg)
+            received[kind] = received.get(kind, 0) + 1
+            if self._awaiting_autopilot:
+                if kind is not self._heartbeat or not self._is_autopilot(msg):
+                    stats["no_vehicle_yet"] += 1
+                    continue
+                self._lock(msg)
+            header = msg._header
+            system, component = header.srcSystem, header.srcComponent
+            if (self.system is not None and system != self.system) or (self.component is not None and component != self.component):
+                stats["other_sender"] += 1
+                continue
+            handler = handlers.get(kind)
+            try:
+                sender = senders.get((system, component)) or self._sender((system, component))
+                if sender.last_seq is not None and header.seq == (sender.last_seq + 1) & 0xFF:
+                    sender.last_seq = header.seq  # the usual case: the next frame
+                else:
+                    self._sequence(sender, header.seq)
+                if handler is None:
+                    stats["ignored"] += 1
+                    continue
+                sample = handler(msg)
+            except Rejected as rejected:
+                self._note(rejected.reason, f"{msg._type}: {rejected.detail}")
+                continue
+            stats["accepted"] += 1
+            self._used[kind] = self._used.get(kind, 0) + 1
+            samples.append(sample)
+        return samples
 
     def _is_autopilot(self, hb: Any) -> bool:
         """pymavlink's ``probably_vehicle_heartbeat``, with every peripheral MAV_TYPE excluded."""

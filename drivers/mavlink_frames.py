@@ -126,7 +126,10 @@ class FrameParser:
         ``other_sender``; any other header not claiming the vehicle is a stray magic byte (garbage)."""
         mav = self.mav
         buf, i, n = mav.buf, mav.buf_index, len(mav.buf)
-        screen, others, garbage = self.screen, 0, 0
+        screen = self.screen
+        if screen is None and i < n and buf[i] in _MAGIC:
+            return mav.parse_char(b"")
+        others = garbage = 0
         while i < n:
             if buf[i] not in _MAGIC:
                 hits = [j for j in (buf.find(0xFD, i), buf.find(0xFE, i)) if j >= 0]

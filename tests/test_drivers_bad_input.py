@@ -332,3 +332,16 @@ def test_a_loss_just_before_a_reboot_is_dropped_but_one_after_it_counts():
     frames += [imu_frame(3_000_000 + 2500 * i, seq=s) for i, s in enumerate([0, 1, 2, 3, 7, 8])]  # 4, 5, 6 lost after the reboot
     decoder.feed(b"".join(frames))
     assert decoder.stats["lost"] == 3
+
+
+def test_after_a_reboot_the_stream_continues_by_the_receive_time_that_passed():
+    """An autopilot at 100 s of uptime reboots; 8 s of receive time later it sends again from 3 s.
+    The stream goes on 8 s (plus its own step) after its last time, where a receiver expects it."""
+    decoder = MavlinkDecoder()
+    rx0 = 5_000 * SEC
+    before = [(100_000_000 + 10_000 * i, rx0 + 10_000_000 * i) for i in range(3)]  # (time_usec, receive_ns)
+    after = [(3_000_000 + 10_000 * i, rx0 + 20_000_000 + 8 * SEC + 10_000_000 * i) for i in range(3)]
+    out = [s.t_ns for t, rx in before + after for s in decoder.feed(imu_frame(t), rx)]
+    last = 100_020_000_000
+    assert out == [100_000_000_000, 100_010_000_000, last, last + 8 * SEC + 10_000_000, last + 8 * SEC + 20_000_000]
+    assert decoder.stats["reboot"] == 1
