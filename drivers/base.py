@@ -14,10 +14,18 @@ from .samples import Sample
 LOG_INTERVAL_S = 10.0
 
 
+class SourceError(Exception):
+    """A source cannot be opened as configured (bad connection string, unknown CAN interface, unreadable key).
+
+    Raised at construction, never later (as python-can's ``can.exceptions`` are), with a message that
+    names what is wrong and what is accepted; the cause is chained as ``__cause__``.
+    """
+
+
 class ReasonLog:
     """Counts events by reason into ``stats`` and logs each reason at most once per interval.
 
-    Calling it with a reason adds one to ``stats[reason]``; the first
+    Calling it with a reason adds ``count`` (one) to ``stats[reason]``; the first
     occurrence, and then one per ``interval_s``, is logged at WARNING with the
     running count and the latest detail.
     """
@@ -35,8 +43,8 @@ class ReasonLog:
         self._clock = clock
         self._next_log: dict[str, float] = {}
 
-    def __call__(self, reason: str, detail: str = "") -> None:
-        self.stats[reason] += 1
+    def __call__(self, reason: str, detail: str = "", count: int = 1) -> None:
+        self.stats[reason] += count
         now = self._clock()
         if now >= self._next_log.get(reason, now):
             self._next_log[reason] = now + self._interval

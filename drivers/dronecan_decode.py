@@ -1,23 +1,27 @@
 """DroneCAN frames (python-can ``Message``) to samples.
 
 Decodes uavcan.equipment.ahrs.RawIMU (latest gyro and accel samples),
-MagneticFieldStrength2 and Solution with the ``dronecan`` package's own DSDL
-definitions. Multi-frame transfers are reassembled here rather than by
+MagneticFieldStrength2, Solution and uavcan.equipment.gnss.Fix2 with the
+``dronecan`` package's own DSDL definitions. Multi-frame transfers are reassembled here rather than by
 ``dronecan.transport.TransferManager`` (whose stale-transfer cleanup crashes
 and whose per-transfer object set-up is 60% of its decode time); the CRC
 uses ``binascii.crc_hqx``, the same CRC-16-CCITT as ``dronecan``'s own.
 
-Times: RawIMU and Solution carry ``uavcan.Timestamp`` (bus time base, us).
-MagneticFieldStrength2 carries none, so its time is the frame's receive time
-(``Message.timestamp``) moved onto the sender time base by the offset seen on
-the latest timestamped transfer of the bus (receive time as is until one is
-seen).
+Times: RawIMU, Solution and Fix2 carry ``uavcan.Timestamp`` (the node's time
+base, us; Fix2's is zero when the node has no synchronised time).
+MagneticFieldStrength2 carries none (nor does a Fix2 with a zero timestamp),
+so its time is the frame's receive time (``Message.timestamp``) moved onto the
+node's time base by the offset seen on the latest timestamped transfer of the
+*same node* (receive time as is until one is seen): two nodes' clocks need not
+agree. Fix2's ``gnss_timestamp`` is on a GNSS time standard (UTC, GPS, TAI,
+with leap seconds), not the node's clock, and is not used for the sample time.
 """
 
 from __future__ import annotations
 
 import binascii
 import logging
+import math
 from typing import Any, Callable
 
 import can
@@ -25,17 +29,38 @@ import dronecan
 from dronecan.dsdl import CompoundType
 from dronecan.transport import bits_from_bytes
 
-from .decoder import Decoder
-from .samples import AttitudeSample, ImuSample, MagSample, Sample, SourceId
-from .timebase import NS_PER_US
-from .validation import ACCEL_MAX_M_S2, GYRO_MAX_RAD_S, MAG_MAX_GAUSS, Rejected, check_quaternion, check_vector
+from .decoder import Decoder, Stream
+from .samples import AttitudeSample, GnssSample, ImuSample, MagSample, Sample
+from .timebase import MAX_TIME_NS, NS_PER_US
+from .validation import (
+    ACCEL_MAX_M_S2,
+    GNSS_VELOCITY_MAX_M_S,
+    GYRO_MAX_RAD_S,
+    MAG_MAX_GAUSS,
+    Rejected,
+    check_position,
+    check_quaternion,
+    check_vector,
+)
 
 log = logging.getLogger(__name__)
 
 RAW_IMU = "uavcan.equipment.ahrs.RawIMU"
 MAG_FIELD = "uavcan.equipment.ahrs.MagneticFieldStrength2"
 SOLUTION = "uavcan.equipment.ahrs.Solution"
+FIX2 = "uavcan.equipment.gnss.Fix2"
 MAX_PENDING_TRANSFERS = 64
+"""Multi-frame transfers reassembled at once; one more is refused as ``too_many_transfers``."""
+BUS_CLOCK = "bus"
+"""A node's own time base (``uavcan.Timestamp``)."""
+RECEIVE_CLOCK = "receive"
+"""The receiver's clock, for a node whose time base has not been seen yet."""
+FIX2_STATUS_2D = 2
+FIX2_MODE_DGPS, FIX2_MODE_RTK = 1, 2
+FIX2_SUB_MODE_RTK_FIXED = 1
+FIX2_VELOCITY_VARIANCES = {6: (3, 4, 5), 36: (21, 28, 35)}
+"""Where the north, east, down velocity variances sit in Fix2's ``covariance`` (6: the diagonal
+of position then velocity; 36: the full 6x6 matrix), as ArduPilot's AP_GPS_DroneCAN reads it."""
 TRANSFER_TIMEOUT_S = 1.0
 _SERVICE_BIT = 1 << 7
 _START, _END, _TOGGLE, _TID = 0x80, 0x40, 0x20, 0x1F
@@ -64,13 +89,12 @@ class DroneCanDecoder(Decoder):
     def __init__(self, **decoder_options: Any) -> None:
         super().__init__("dronecan", log, **decoder_options)
         self._handlers: dict[int, tuple[Any, Any, Callable[[Any, int, float], Sample]]] = {}
-        for name, handler in ((RAW_IMU, self._raw_imu), (MAG_FIELD, self._mag), (SOLUTION, self._solution)):
+        for name, handler in ((RAW_IMU, self._raw_imu), (MAG_FIELD, self._mag), (SOLUTION, self._solution), (FIX2, self._fix2)):
             dtype = data_type(name)
             # One payload object per type, unpacked into again for every transfer: creating
             # a fresh dronecan value object costs more than decoding it.
             self._handlers[dtype.default_dtid] = (dtype, dtype(), handler)
         self._partials: dict[int, _Partial] = {}
-        self._rx_to_sender_ns: int | None = None
 
     def feed(self, msg: can.Message) -> list[Sample]:
         """Samples completed by this frame (empty for a frame in the middle of a transfer)."""
@@ -150,34 +174,57 @@ class DroneCanDecoder(Decoder):
             del partials[key]
             self._note("incomplete_transfer", f"id {key:#x} timed out")
         if len(partials) >= MAX_PENDING_TRANSFERS:
-            del partials[next(iter(partials))]
-            self._note("incomplete_transfer", "too many unfinished transfers")
+            self._note("too_many_transfers", f"id {can_id:#x}: {len(partials)} unfinished transfers already")
+            return
         partials[can_id] = partial
 
-    def _stamp(self, node: int, kind: str, instance: int, usec: int, t_rx: float) -> tuple[int, SourceId]:
-        """Monotonic time of a transfer stamped ``usec`` on the bus time base (0: none), and its source."""
-        rx_ns = round(t_rx * 1e9)
+    def _stamp_transfer(self, node: int, kind: str, instance: int, usec: int, t_rx: float) -> tuple[int, Stream]:
+        """Monotonic time of a transfer stamped ``usec`` on the node's time base (0: none), and its stream."""
+        if not 0.0 <= t_rx < MAX_TIME_NS / 1e9:  # NaN fails too
+            raise Rejected("time_out_of_range", f"receive time {t_rx!r} s")
+        rx_ns = self._receive_ns = round(t_rx * 1e9)
+        stream = self._stream(kind, node, 0, instance)
+        sender = stream.sender
         if usec:
             sender_ns = usec * NS_PER_US
-            self._rx_to_sender_ns = sender_ns - rx_ns
-        else:  # no timestamp in the message (or 0, "unknown"): receive time on the bus time base
-            sender_ns = rx_ns + (self._rx_to_sender_ns or 0)
-        clock, source = self._stream(kind, node, 0, instance)
-        return clock.stamp(sender_ns), source
+            t_ns = self._stamp(stream, sender_ns, BUS_CLOCK)
+            sender.rx_offset_ns = sender_ns - rx_ns
+        elif sender.rx_offset_ns is not None:  # no timestamp in the message (or 0, "unknown")
+            t_ns = self._stamp(stream, rx_ns + sender.rx_offset_ns, BUS_CLOCK)
+        else:
+            t_ns = self._stamp(stream, rx_ns, RECEIVE_CLOCK)
+        return t_ns, stream
 
     def _raw_imu(self, m: Any, node: int, t_rx: float) -> ImuSample:
         gyro = check_vector("gyro", tuple(m.rate_gyro_latest), GYRO_MAX_RAD_S)
         accel = check_vector("accel", tuple(m.accelerometer_latest), ACCEL_MAX_M_S2)
-        t_ns, source = self._stamp(node, RAW_IMU, 0, m.timestamp.usec, t_rx)
-        return ImuSample(t_ns, gyro, accel, None, source)  # type: ignore[arg-type]
+        t_ns, stream = self._stamp_transfer(node, RAW_IMU, 0, m.timestamp.usec, t_rx)
+        return ImuSample(t_ns, gyro, accel, None, stream.source)  # type: ignore[arg-type]
 
     def _mag(self, m: Any, node: int, t_rx: float) -> MagSample:
         mag = check_vector("mag", tuple(m.magnetic_field_ga), MAG_MAX_GAUSS)
-        t_ns, source = self._stamp(node, MAG_FIELD, m.sensor_id, 0, t_rx)
-        return MagSample(t_ns, mag, source)  # type: ignore[arg-type]
+        t_ns, stream = self._stamp_transfer(node, MAG_FIELD, m.sensor_id, 0, t_rx)
+        return MagSample(t_ns, mag, stream.source)  # type: ignore[arg-type]
 
     def _solution(self, m: Any, node: int, t_rx: float) -> AttitudeSample:
         x, y, z, w = m.orientation_xyzw
         q = check_quaternion((w, x, y, z))
-        t_ns, source = self._stamp(node, SOLUTION, 0, m.timestamp.usec, t_rx)
-        return AttitudeSample(t_ns, q, source)
+        t_ns, stream = self._stamp_transfer(node, SOLUTION, 0, m.timestamp.usec, t_rx)
+        return AttitudeSample(t_ns, q, stream.source)
+
+    def _fix2(self, m: Any, node: int, t_rx: float) -> GnssSample:
+        """A receiver's fix: NED velocity (m/s), speed accuracy from the covariance, WGS84 position."""
+        fix_type = 1 if m.status < FIX2_STATUS_2D else m.status  # no fix / time only: MAVLink's GPS_FIX_TYPE_NO_FIX
+        if m.status == 3 and m.mode == FIX2_MODE_DGPS:
+            fix_type = 4
+        elif m.status == 3 and m.mode == FIX2_MODE_RTK:
+            fix_type = 6 if m.sub_mode == FIX2_SUB_MODE_RTK_FIXED else 5
+        vel = accuracy = lat = lon = alt = None
+        if m.status >= FIX2_STATUS_2D:
+            vel = check_vector("gnss_velocity", tuple(m.ned_velocity), GNSS_VELOCITY_MAX_M_S)
+            variances = [m.covariance[i] for i in FIX2_VELOCITY_VARIANCES.get(len(m.covariance), ())]
+            if variances and all(v >= 0.0 for v in variances):  # NaN fails: unknown
+                accuracy = math.sqrt(sum(variances) / 3.0)
+            lat, lon, alt = check_position(m.latitude_deg_1e8 * 1e-8, m.longitude_deg_1e8 * 1e-8, m.height_msl_mm * 1e-3)
+        t_ns, stream = self._stamp_transfer(node, FIX2, 0, m.timestamp.usec, t_rx)
+        return GnssSample(t_ns, fix_type, vel, m.status == 3, accuracy, lat, lon, alt, False, stream.source)  # type: ignore[arg-type]

@@ -5,12 +5,31 @@ from __future__ import annotations
 import can
 from dronecan.transport import Transfer
 
-from .dronecan_decode import MAG_FIELD, RAW_IMU, SOLUTION, data_type
-from .samples import AttitudeSample, ImuSample, MagSample, Sample
+from .dronecan_decode import FIX2, FIX2_MODE_DGPS, FIX2_MODE_RTK, FIX2_SUB_MODE_RTK_FIXED, MAG_FIELD, RAW_IMU, SOLUTION, data_type
+from .samples import AttitudeSample, GnssSample, ImuSample, MagSample, Sample
 from .timebase import NS_PER_US
 
 DEFAULT_PRIORITY = 16
 _TIMESTAMP = data_type("uavcan.Timestamp")
+_FIX2_STATUS_MODE = {0: (0, 0, 0), 1: (0, 0, 0), 2: (2, 0, 0), 3: (3, 0, 0), 4: (3, FIX2_MODE_DGPS, 0),
+                     5: (3, FIX2_MODE_RTK, 0), 6: (3, FIX2_MODE_RTK, FIX2_SUB_MODE_RTK_FIXED)}
+"""MAVLink GPS_FIX_TYPE to Fix2 (status, mode, sub_mode)."""
+
+
+def _fix2(sample: GnssSample):  # type: ignore[no-untyped-def]
+    """Fix2 of a GNSS sample; the speed accuracy becomes three equal velocity variances, position variances NaN (unknown)."""
+    status, mode, sub_mode = _FIX2_STATUS_MODE[sample.fix_type]
+    nan = float("nan")
+    acc = sample.speed_accuracy_m_s
+    return data_type(FIX2)(
+        timestamp=_TIMESTAMP(usec=sample.t_ns // NS_PER_US),
+        latitude_deg_1e8=round((sample.lat_deg or 0.0) * 1e8),
+        longitude_deg_1e8=round((sample.lon_deg or 0.0) * 1e8),
+        height_msl_mm=round((sample.alt_m or 0.0) * 1e3),
+        ned_velocity=list(sample.vel_ned_m_s or (0.0, 0.0, 0.0)),
+        status=status, mode=mode, sub_mode=sub_mode,
+        covariance=[] if acc is None else [nan, nan, nan, acc * acc, acc * acc, acc * acc],
+    )
 
 
 def _payloads(sample: Sample) -> list:  # type: ignore[type-arg]
@@ -30,6 +49,8 @@ def _payloads(sample: Sample) -> list:  # type: ignore[type-arg]
     if isinstance(sample, AttitudeSample):
         w, x, y, z = sample.q_wxyz
         return [data_type(SOLUTION)(timestamp=_TIMESTAMP(usec=sample.t_ns // NS_PER_US), orientation_xyzw=[x, y, z, w])]
+    if isinstance(sample, GnssSample):
+        return [_fix2(sample)]
     raise TypeError(f"cannot encode {type(sample).__name__} as DroneCAN")
 
 
@@ -40,7 +61,7 @@ def encode_dronecan(
 
     IMU samples become a RawIMU transfer (latest samples, no integrals),
     followed by a MagneticFieldStrength2 transfer when they carry a
-    magnetometer; attitude becomes a Solution transfer (orientation only).
+    magnetometer; attitude becomes a Solution transfer (orientation only), GNSS a Fix2.
     """
     frames = []
     for payload in _payloads(sample):

@@ -13,7 +13,16 @@ ATTITUDE            time_boot_ms (uint32)   roll/pitch/yaw rad (3-2-1)  -
 ATTITUDE_QUATERNION time_boot_ms (uint32)   q1..q4 = w, x, y, z         -
 GPS_RAW_INT         time_usec (us)          vel cm/s, cog cdeg (no down) lat/lon degE7, alt mm
 GLOBAL_POSITION_INT time_boot_ms (uint32)   vx, vy, vz cm/s NED         lat/lon degE7, alt mm
+GPS_INPUT           time_usec (us)          vn, ve, vd m/s NED          lat/lon degE7, alt m
+HIL_GPS             time_usec (us)          vn, ve, vd cm/s NED         lat/lon degE7, alt mm
 ==================  ======================  ==========================  ============
+
+``time_usec`` is "UNIX Epoch time or time since system boot", told apart, as the MAVLink
+definitions say, by its magnitude: from 10^15 us (September 2001) on it is Unix time.
+
+Before any message becomes a sample, the decoder chooses the vehicle (``drivers.link``:
+by default the first autopilot HEARTBEAT's system and component; everyone else is
+``other_sender``) and counts the frames missing in the vehicle's sequence numbers as ``lost``.
 """
 
 from __future__ import annotations
@@ -21,12 +30,15 @@ from __future__ import annotations
 import importlib
 import logging
 import math
+from collections import Counter
 from typing import Any, Callable
 
-from .decoder import Decoder
+from .decoder import BOOT_CLOCK, Decoder, Sender, Stream
 from .euler import quaternion_from_euler
-from .samples import AttitudeSample, GnssSample, ImuSample, Sample, SourceId, Vec3
-from .timebase import NS_PER_US, StreamClock
+from .link import LinkSettings
+from .mavlink_frames import FrameParser
+from .samples import AttitudeSample, GnssSample, ImuSample, Sample, Vec3
+from .timebase import NS_PER_US
 from .validation import (
     ACCEL_MAX_M_S2,
     GNSS_VELOCITY_MAX_M_S,
@@ -53,6 +65,20 @@ UINT16_UNKNOWN = 0xFFFF
 FIX_2D = 2
 """GPS_FIX_TYPE of the first fix that carries a velocity."""
 _ANGLE_LIMIT = 7.0  # radians; MAVLink Euler angles are within +-pi
+EPOCH_CLOCK = "epoch"
+EPOCH_MIN_US = 10**15
+"""A ``time_usec`` this large is Unix time, not time since boot (31.7 years of uptime)."""
+REORDER_MAX = 16
+"""A step back in a sender's sequence numbers by at most this much is a reordered frame, not a restart."""
+IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", *SCALED_IMU_INSTANCE)
+"""The message types that carry an IMU sample."""
+GPS_INPUT_IGNORE_ALT, GPS_INPUT_IGNORE_VEL_HORIZ, GPS_INPUT_IGNORE_VEL_VERT, GPS_INPUT_IGNORE_SPEED_ACCURACY = 1, 8, 16, 32
+"""GPS_INPUT ``ignore_flags`` bits (GPS_INPUT_IGNORE_FLAGS) of the fields the decoder uses."""
+NOT_A_VEHICLE = (
+    "GCS", "ANTENNA_TRACKER", "ONBOARD_CONTROLLER", "GIMBAL", "ADSB", "CAMERA", "CHARGING_STATION", "FLARM",
+    "SERVO", "ODID", "BATTERY", "PARACHUTE", "LOG", "OSD", "IMU", "GPS", "WINCH", "ILLUMINATOR", "GRIPPER",
+)
+"""MAV_TYPE names of peripherals and ground stations: their HEARTBEATs never choose the vehicle."""
 
 
 def dialect_module(dialect: str) -> Any:
@@ -60,42 +86,40 @@ def dialect_module(dialect: str) -> Any:
     return importlib.import_module(f"pymavlink.dialects.v20.{dialect}")
 
 
-def _bad_data_reason(text: str) -> str:
-    if text == "Bad prefix":
-        return "garbage"
-    if text.startswith("invalid MAVLink CRC"):
-        return "bad_crc"
-    return "bad_frame"
-
-
 class MavlinkDecoder(Decoder):
-    """Decode MAVLink bytes (``feed``) or parsed messages (``decode_message``) into samples.
+    """Decode MAVLink bytes into samples: ``feed`` for a byte stream, ``feed_datagram`` for whole datagrams or log records.
 
-    ``system``/``component`` keep only messages from that sender (None: all).
-    ``parser`` is the pymavlink ``MAVLink`` object that frames the bytes (a
-    connection's ``.mav`` when the bytes come through ``mavutil``); it is set
-    to robust parsing. After a frame fails (bad CRC, bad header) or turns out
-    to be an unknown message, the decoder hands the parser every byte of it
-    but the first again, so a valid packet swallowed by a false header found
-    in garbage is still decoded.
+    ``link`` chooses the vehicle, the signing key and the dialect (``drivers.link``); without one
+    every sender is used, in the ``ardupilotmega`` dialect, unsigned (tests, the simulator, imports).
+    ``signing_timestamp``: see :class:`~drivers.mavlink_frames.FrameParser`. ``screen``: once the
+    vehicle is chosen, count other senders' frames without decoding them (a flood costs a header
+    read per frame); a log reader turns it off to count every sender's messages. ``received``
+    counts the valid messages of every type decoded (used or not), ``used`` those that became
+    samples; ``stats`` counts ``accepted`` and every reason a frame or message was not used.
     """
 
     def __init__(
         self,
-        system: int | None = None,
-        component: int | None = None,
-        dialect: str = "common",
-        parser: Any = None,
+        link: LinkSettings | None = None,
+        signing_timestamp: int | None = None,
+        screen: bool = True,
         **decoder_options: Any,
     ) -> None:
         super().__init__("mavlink", log, **decoder_options)
-        mod = dialect_module(dialect)
-        self.parser = parser if parser is not None else mod.MAVLink(None)
-        self.parser.robust_parsing = True
-        self._system = system
-        self._component = component
-        self._bad_data = mod.MAVLink_bad_data
-        self._unknown = mod.MAVLink_unknown
+        self.link = link if link is not None else LinkSettings(lock_first_autopilot=False)
+        mod = dialect_module(self.link.dialect)
+        self.frames = FrameParser(mod, self._note, self.link.signing_key(), signing_timestamp)
+        self._received: dict[type, int] = {}
+        self._used: dict[type, int] = {}
+        self.system = self.link.system
+        """System id data is taken from (None: any, or not chosen yet)."""
+        self.component = self.link.component
+        """Component id data is taken from (None: any, or not chosen yet)."""
+        self._awaiting_autopilot = self.link.system is None and self.link.lock_first_autopilot
+        self._heartbeat = mod.MAVLink_heartbeat_message
+        self._not_a_vehicle = frozenset(getattr(mod, f"MAV_TYPE_{name}") for name in NOT_A_VEHICLE if hasattr(mod, f"MAV_TYPE_{name}"))
+        self._invalid_autopilot = mod.MAV_AUTOPILOT_INVALID
+        self._gimbal_component = mod.MAV_COMP_ID_GIMBAL
         self._handlers: dict[type, Callable[[Any], Sample]] = {
             mod.MAVLink_attitude_message: self._attitude,
             mod.MAVLink_attitude_quaternion_message: self._attitude_quaternion,
@@ -103,62 +127,121 @@ class MavlinkDecoder(Decoder):
             mod.MAVLink_raw_imu_message: self._raw_imu,
             mod.MAVLink_gps_raw_int_message: self._gps_raw_int,
             mod.MAVLink_global_position_int_message: self._global_position_int,
+            mod.MAVLink_gps_input_message: self._gps_input,
+            mod.MAVLink_hil_gps_message: self._hil_gps,
         }
         for name in SCALED_IMU_INSTANCE:
             self._handlers[getattr(mod, f"MAVLink_{name.lower()}_message")] = self._scaled_imu
+        self._screen = screen
+        self._set_screen()
 
-    def feed(self, data: bytes) -> list[Sample]:
-        """Parse ``data`` (any split of a byte stream) and return the samples completed by it."""
+    def _set_screen(self) -> None:
+        """Let the frame parser skip other senders' frames once the vehicle is chosen (see FrameParser)."""
+        system, component = self.system, self.component
+        if self._screen and system is not None:
+            self.frames.screen = lambda s, c: s == system and (component is None or c == component)
+
+    def feed(self, data: bytes, receive_ns: int | None = None) -> list[Sample]:
+        """Samples completed by ``data``, any split of a byte stream (serial, TCP).
+
+        ``receive_ns``, the receiver's time of ``data`` where known, keeps a stream's time line
+        continuous in receive time across a sender's reboot (see ``StreamClock``).
+        """
+        self._receive_ns = receive_ns
+        return self._decode_all(self.frames.parse(data))
+
+    def feed_datagram(self, data: bytes, receive_ns: int | None = None) -> list[Sample]:
+        """Samples of ``data``, a whole datagram or log record: a frame cut short at its end is ``truncated``."""
+        self._receive_ns = receive_ns
+        return self._decode_all(self.frames.parse(data, complete=True))
+
+    @property
+    def received(self) -> Counter[str]:
+        """Valid messages decoded, by type name (every sender, used or not)."""
+        return Counter({kind.msgname: n for kind, n in self._received.items()})
+
+    @property
+    def used(self) -> Counter[str]:
+        """Messages that became samples, by type name."""
+        return Counter({kind.msgname: n for kind, n in self._used.items()})
+
+    def _decode_all(self, messages: list[Any]) -> list[Sample]:
+        """Samples of valid messages; the others are counted (not from the vehicle, ignored, refused)."""
         samples = []
-        parser = self.parser
-        msg = parser.parse_char(data)
-        while msg is not None:
-            sample = self.decode_message(msg)
-            if sample is not None:
-                samples.append(sample)
-            msg = parser.parse_char(b"")
+        stats, received, senders, handlers = self.stats, self._received, self._senders, self._handlers
+        for msg in messages:
+            kind = type(msg)
+            received[kind] = received.get(kind, 0) + 1
+            if self._awaiting_autopilot:
+                if kind is not self._heartbeat or not self._is_autopilot(msg):
+                    stats["no_vehicle_yet"] += 1
+                    continue
+                self._lock(msg)
+            header = msg._header
+            system, component = header.srcSystem, header.srcComponent
+            if (self.system is not None and system != self.system) or (self.component is not None and component != self.component):
+                stats["other_sender"] += 1
+                continue
+            handler = handlers.get(kind)
+            try:
+                sender = senders.get((system, component)) or self._sender((system, component))
+                if sender.last_seq is not None and header.seq == (sender.last_seq + 1) & 0xFF:
+                    sender.last_seq = header.seq  # the usual case: the next frame
+                else:
+                    self._sequence(sender, header.seq)
+                if handler is None:
+                    stats["ignored"] += 1
+                    continue
+                sample = handler(msg)
+            except Rejected as rejected:
+                self._note(rejected.reason, f"{msg._type}: {rejected.detail}")
+                continue
+            stats["accepted"] += 1
+            self._used[kind] = self._used.get(kind, 0) + 1
+            samples.append(sample)
         return samples
 
-    def decode_message(self, msg: Any) -> Sample | None:
-        """Sample of one parsed pymavlink message, or None (refusals are counted in ``stats``)."""
-        handler = self._handlers.get(type(msg))
-        if handler is None:
-            self._not_decoded(msg)
-            return None
-        if (self._system is not None and msg.get_srcSystem() != self._system) or (
-            self._component is not None and msg.get_srcComponent() != self._component
-        ):
-            self.stats["other_sender"] += 1
-            return None
-        try:
-            sample = handler(msg)
-        except Rejected as rejected:
-            self._note(rejected.reason, f"{msg.get_type()}: {rejected.detail}")
-            return None
-        self.stats["accepted"] += 1
-        return sample
+    def _is_autopilot(self, hb: Any) -> bool:
+        """pymavlink's ``probably_vehicle_heartbeat``, with every peripheral MAV_TYPE excluded."""
+        return (
+            hb.autopilot != self._invalid_autopilot
+            and hb.type not in self._not_a_vehicle
+            and hb.get_srcComponent() != self._gimbal_component
+            and (self.component is None or hb.get_srcComponent() == self.component)
+        )
 
-    def _not_decoded(self, msg: Any) -> None:
-        kind = type(msg)
-        if kind is self._bad_data:
-            reason = _bad_data_reason(msg.reason)
-            self._note(reason, msg.reason)
-            if reason != "garbage":
-                self._rescan(msg.data)
-        elif kind is self._unknown:
-            self._note("unknown_message", msg.get_type())
-            self._rescan(msg.data)
-        else:
-            self.stats["ignored"] += 1
+    def _lock(self, hb: Any) -> None:
+        self._awaiting_autopilot = False
+        self.system, self.component = hb.get_srcSystem(), hb.get_srcComponent()
+        self._set_screen()
+        log.info("vehicle: system %d component %d (autopilot %d, type %d)", self.system, self.component, hb.autopilot, hb.type)
 
-    def _rescan(self, frame: bytes) -> None:
-        """Put back all bytes of a refused frame but its first in front of the parser's buffer."""
-        parser = self.parser
-        parser.buf = bytearray(frame[1:]) + parser.buf[parser.buf_index :]
-        parser.buf_index = 0
+    def _sequence(self, sender: Sender, seq: int) -> None:
+        """Note the frames missing before ``seq``: a step forward of 2-128 misses 1-127 frames.
 
-    def _stream_of(self, msg: Any, instance: int = 0) -> tuple[StreamClock, SourceId]:
+        A repeated number (a duplicate, or exactly 256 frames lost) counts nothing; so does a step
+        back: by up to REORDER_MAX a late frame (the sequence stays where it was), further a restart
+        or a jump (it continues from ``seq``). A gap waits as ``pending_lost`` until a boot time
+        from the sender shows whether it restarted (see ``Decoder._settle``).
+        """
+        last = sender.last_seq
+        if last is None:
+            sender.last_seq = seq
+            return
+        gap = (seq - last - 1) & 0xFF
+        if gap >= 256 - REORDER_MAX:  # 255: the same number again; 240-254: a frame overtaken on the way
+            return
+        sender.last_seq = seq
+        if 0 < gap < 128:
+            self.stats["lost"] += sender.pending_lost
+            sender.pending_lost = gap
+
+    def _stream_of(self, msg: Any, instance: int = 0) -> Stream:
         return self._stream(type(msg), msg.get_srcSystem(), msg.get_srcComponent(), instance)
+
+    def _stamp_usec(self, stream: Stream, time_usec: int) -> int:
+        """Time of a ``time_usec`` field: Unix time from EPOCH_MIN_US on, time since boot below."""
+        return self._stamp(stream, time_usec * NS_PER_US, EPOCH_CLOCK if time_usec >= EPOCH_MIN_US else BOOT_CLOCK)
 
     def _imu(self, m: Any, instance: int, gyro: Vec3, accel: Vec3, mag: Vec3 | None, time_usec: int | None) -> ImuSample:
         """Validated sample; stamped by ``time_usec``, or by ``time_boot_ms`` when that is None."""
@@ -166,9 +249,9 @@ class MavlinkDecoder(Decoder):
         check_vector("accel", accel, ACCEL_MAX_M_S2)
         if mag is not None:
             check_vector("mag", mag, MAG_MAX_GAUSS)
-        clock, source = self._stream_of(m, instance)
-        t_ns = clock.stamp_ms_u32(m.time_boot_ms) if time_usec is None else clock.stamp(time_usec * NS_PER_US)
-        return ImuSample(t_ns, gyro, accel, mag, source)
+        stream = self._stream_of(m, instance)
+        t_ns = self._stamp_ms_u32(stream, m.time_boot_ms) if time_usec is None else self._stamp_usec(stream, time_usec)
+        return ImuSample(t_ns, gyro, accel, mag, stream.source)
 
     def _highres_imu(self, m: Any) -> ImuSample:
         mag = (m.xmag, m.ymag, m.zmag) if m.fields_updated & HIGHRES_MAG_BITS else None
@@ -184,26 +267,27 @@ class MavlinkDecoder(Decoder):
         return self._imu(m, instance, gyro, accel, mag, time_usec)
 
     def _scaled_imu(self, m: Any) -> ImuSample:
-        return self._milli_imu(m, SCALED_IMU_INSTANCE[m.get_type()], None)
+        return self._milli_imu(m, SCALED_IMU_INSTANCE[m._type], None)
 
     def _raw_imu(self, m: Any) -> ImuSample:
         return self._milli_imu(m, m.id, m.time_usec)
 
     def _attitude(self, m: Any) -> AttitudeSample:
         roll, pitch, yaw = check_vector("euler", (m.roll, m.pitch, m.yaw), _ANGLE_LIMIT)
-        clock, source = self._stream_of(m)
-        return AttitudeSample(clock.stamp_ms_u32(m.time_boot_ms), quaternion_from_euler(roll, pitch, yaw), source)
+        stream = self._stream_of(m)
+        return AttitudeSample(self._stamp_ms_u32(stream, m.time_boot_ms), quaternion_from_euler(roll, pitch, yaw), stream.source)
 
     def _attitude_quaternion(self, m: Any) -> AttitudeSample:
         q = check_quaternion((m.q1, m.q2, m.q3, m.q4))
-        clock, source = self._stream_of(m)
-        return AttitudeSample(clock.stamp_ms_u32(m.time_boot_ms), q, source)
+        stream = self._stream_of(m)
+        return AttitudeSample(self._stamp_ms_u32(stream, m.time_boot_ms), q, stream.source)
 
-    def _position(self, m: Any) -> tuple[float | None, float | None, float | None]:
-        """WGS84 latitude, longitude (degE7) and MSL altitude (mm) of a GNSS message; all None for 0, 0 (unknown)."""
+    def _position(self, m: Any, alt_m: float | None) -> tuple[float | None, float | None, float | None]:
+        """WGS84 latitude, longitude (degE7 fields) and MSL altitude of a GNSS message; all None for 0, 0 (unknown)."""
         if m.lat == 0 and m.lon == 0:
             return None, None, None
-        return check_position(m.lat * DEG_E7, m.lon * DEG_E7, m.alt * MILLI)
+        lat, lon, alt = check_position(m.lat * DEG_E7, m.lon * DEG_E7, 0.0 if alt_m is None else alt_m)
+        return lat, lon, None if alt_m is None else alt
 
     def _gps_raw_int(self, m: Any) -> GnssSample:
         """A receiver's fix: ground speed along the course over ground (no vertical velocity)."""
@@ -212,13 +296,34 @@ class MavlinkDecoder(Decoder):
             speed, course = m.vel * CENTI, math.radians(m.cog * CENTI)
             vel = check_vector("gnss_velocity", (speed * math.cos(course), speed * math.sin(course), 0.0), GNSS_VELOCITY_MAX_M_S)
         accuracy = getattr(m, "vel_acc", 0) * MILLI or None  # extension field, 0 = unknown
-        lat, lon, alt = self._position(m) if m.fix_type >= FIX_2D else (None, None, None)
-        clock, source = self._stream_of(m)
-        return GnssSample(clock.stamp(m.time_usec * NS_PER_US), m.fix_type, vel, False, accuracy, lat, lon, alt, False, source)
+        lat, lon, alt = self._position(m, m.alt * MILLI) if m.fix_type >= FIX_2D else (None, None, None)
+        stream = self._stream_of(m)
+        return GnssSample(self._stamp_usec(stream, m.time_usec), m.fix_type, vel, False, accuracy, lat, lon, alt, False, stream.source)
 
     def _global_position_int(self, m: Any) -> GnssSample:
         """The autopilot's fused navigation solution: NED velocity, position (fix type 3 by definition)."""
         vel = check_vector("gnss_velocity", (m.vx * CENTI, m.vy * CENTI, m.vz * CENTI), GNSS_VELOCITY_MAX_M_S)
-        lat, lon, alt = self._position(m)
-        clock, source = self._stream_of(m)
-        return GnssSample(clock.stamp_ms_u32(m.time_boot_ms), 3, vel, True, None, lat, lon, alt, True, source)
+        lat, lon, alt = self._position(m, m.alt * MILLI)
+        stream = self._stream_of(m)
+        return GnssSample(self._stamp_ms_u32(stream, m.time_boot_ms), 3, vel, True, None, lat, lon, alt, True, stream.source)
+
+    def _gps_input(self, m: Any) -> GnssSample:
+        """A receiver's fix injected by a companion computer: NED velocity in m/s, fields switched off by ``ignore_flags``."""
+        ignore = m.ignore_flags
+        vel, vertical = None, False
+        if m.fix_type >= FIX_2D and not ignore & GPS_INPUT_IGNORE_VEL_HORIZ:
+            vertical = not ignore & GPS_INPUT_IGNORE_VEL_VERT
+            vel = check_vector("gnss_velocity", (m.vn, m.ve, m.vd if vertical else 0.0), GNSS_VELOCITY_MAX_M_S)
+        accuracy = None if ignore & GPS_INPUT_IGNORE_SPEED_ACCURACY or not m.speed_accuracy > 0 else m.speed_accuracy
+        position = self._position(m, None if ignore & GPS_INPUT_IGNORE_ALT else m.alt) if m.fix_type >= FIX_2D else (None, None, None)
+        stream = self._stream_of(m, m.gps_id)
+        return GnssSample(self._stamp_usec(stream, m.time_usec), m.fix_type, vel, vertical, accuracy, *position, False, stream.source)
+
+    def _hil_gps(self, m: Any) -> GnssSample:
+        """A simulator's GNSS fix: NED velocity in cm/s (no accuracy: ``eph``/``epv`` are dilutions)."""
+        vel = None
+        if m.fix_type >= FIX_2D:
+            vel = check_vector("gnss_velocity", (m.vn * CENTI, m.ve * CENTI, m.vd * CENTI), GNSS_VELOCITY_MAX_M_S)
+        position = self._position(m, m.alt * MILLI) if m.fix_type >= FIX_2D else (None, None, None)
+        stream = self._stream_of(m, m.id)
+        return GnssSample(self._stamp_usec(stream, m.time_usec), m.fix_type, vel, vel is not None, None, *position, False, stream.source)

@@ -2,19 +2,32 @@
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from .euler import euler_from_quaternion
-import math
-
-from .mavlink_decode import CENTI, DEG_E7, HIGHRES_MAG_BITS, MG_TO_M_S2, MILLI, SCALED_IMU_INSTANCE, UINT16_UNKNOWN, dialect_module
+from .mavlink_decode import (
+    CENTI,
+    DEG_E7,
+    GPS_INPUT_IGNORE_SPEED_ACCURACY,
+    GPS_INPUT_IGNORE_VEL_HORIZ,
+    GPS_INPUT_IGNORE_VEL_VERT,
+    HIGHRES_MAG_BITS,
+    IMU_MESSAGES,
+    MG_TO_M_S2,
+    MILLI,
+    SCALED_IMU_INSTANCE,
+    UINT16_UNKNOWN,
+    dialect_module,
+)
 from .samples import AttitudeSample, GnssSample, ImuSample, Sample, Vec3
 from .timebase import NS_PER_MS, NS_PER_US
 
 HIGHRES_ACCEL_GYRO_BITS = 0x3F
-IMU_MESSAGES = ("HIGHRES_IMU", "RAW_IMU", *SCALED_IMU_INSTANCE)
 ATTITUDE_MESSAGES = ("ATTITUDE_QUATERNION", "ATTITUDE")
-GNSS_MESSAGES = ("GPS_RAW_INT", "GLOBAL_POSITION_INT")
+GNSS_MESSAGES = ("GPS_RAW_INT", "GLOBAL_POSITION_INT", "GPS_INPUT", "HIL_GPS")
+HEARTBEAT_PERIOD_NS = 1_000_000_000
+"""An autopilot sends HEARTBEAT at 1 Hz."""
 _INT16 = 32767
 
 
@@ -26,18 +39,41 @@ def _milli(v: Vec3 | None, scale: float) -> tuple[int, int, int]:
 
 
 class MavlinkEncoder:
-    """Pack samples as MAVLink 2 frames from one sender, with its own sequence counter."""
+    """Pack samples as MAVLink 2 frames from one sender, with its own sequence counter.
 
-    def __init__(self, system: int = 1, component: int = 1, dialect: str = "common") -> None:
+    Like an autopilot, the sender announces itself: a HEARTBEAT (``vehicle_type``, ``autopilot``:
+    MAV_TYPE and MAV_AUTOPILOT values) goes before its first frame and then once a second of
+    sample time, so that a receiver locked onto the first autopilot heard accepts its data.
+    ``heartbeat=False`` leaves them out (single frames in tests).
+    """
+
+    def __init__(
+        self,
+        system: int = 1,
+        component: int = 1,
+        dialect: str = "common",
+        heartbeat: bool = True,
+        vehicle_type: int = 2,  # MAV_TYPE_QUADROTOR
+        autopilot: int = 0,  # MAV_AUTOPILOT_GENERIC
+    ) -> None:
         self._mod = dialect_module(dialect)
         self.mav = self._mod.MAVLink(None, srcSystem=system, srcComponent=component)
+        self._heartbeat = self._mod.MAVLink_heartbeat_message(vehicle_type, autopilot, 0, 0, 4, 3) if heartbeat else None  # MAV_STATE_ACTIVE
+        self._next_heartbeat_ns: int | None = None
 
     def encode(self, sample: Sample, message: str | None = None) -> bytes:
-        """Frame of ``sample`` as ``message`` (default HIGHRES_IMU for IMU, ATTITUDE_QUATERNION for attitude)."""
-        msg = self.message(sample, message)
-        data = msg.pack(self.mav)
+        """Frame of ``sample`` as ``message`` (default HIGHRES_IMU for IMU, ATTITUDE_QUATERNION for attitude),
+        after a HEARTBEAT when one is due."""
+        data = b""
+        if self._heartbeat is not None and (self._next_heartbeat_ns is None or sample.t_ns >= self._next_heartbeat_ns):
+            data = self._pack(self._heartbeat)
+            self._next_heartbeat_ns = sample.t_ns + HEARTBEAT_PERIOD_NS
+        return data + self._pack(self.message(sample, message))
+
+    def _pack(self, msg: Any) -> bytes:
+        data = bytes(msg.pack(self.mav))
         self.mav.seq = (self.mav.seq + 1) % 256
-        return bytes(data)
+        return data
 
     def message(self, sample: Sample, message: str | None = None) -> Any:
         """The pymavlink message object ``encode`` would pack."""
@@ -93,6 +129,18 @@ class MavlinkEncoder:
             return m.MAVLink_global_position_int_message(
                 self._time_boot_ms(s.t_ns), lat, lon, alt_mm, 0, round(vn / CENTI), round(ve / CENTI), round(vd / CENTI), UINT16_UNKNOWN
             )
+        if message == "GPS_INPUT":
+            ignore = (0 if s.vel_ned_m_s is not None else GPS_INPUT_IGNORE_VEL_HORIZ) | (0 if s.vertical_velocity else GPS_INPUT_IGNORE_VEL_VERT)
+            ignore |= GPS_INPUT_IGNORE_SPEED_ACCURACY if s.speed_accuracy_m_s is None else 0
+            return m.MAVLink_gps_input_message(
+                s.t_ns // NS_PER_US, s.source.instance, ignore, 0, 0, s.fix_type, lat, lon, s.alt_m or 0.0, 1.0, 1.0,
+                vn, ve, vd, s.speed_accuracy_m_s or 0.0, 0.0, 0.0, 10, 0,
+            )
+        if message == "HIL_GPS":
+            return m.MAVLink_hil_gps_message(
+                s.t_ns // NS_PER_US, s.fix_type, lat, lon, alt_mm, UINT16_UNKNOWN, UINT16_UNKNOWN, UINT16_UNKNOWN,
+                round(vn / CENTI), round(ve / CENTI), round(vd / CENTI), UINT16_UNKNOWN, 10, s.source.instance, 0,
+            )
         raise ValueError(f"{message!r} is not one of {GNSS_MESSAGES}")
 
     @staticmethod
@@ -101,5 +149,5 @@ class MavlinkEncoder:
 
 
 def encode_mavlink(sample: Sample, message: str | None = None, system: int = 1, component: int = 1) -> bytes:
-    """One MAVLink 2 frame (sequence 0) of ``sample``; see ``MavlinkEncoder`` for streams."""
-    return MavlinkEncoder(system, component).encode(sample, message)
+    """One MAVLink 2 frame (sequence 0, no HEARTBEAT) of ``sample``; see ``MavlinkEncoder`` for streams."""
+    return MavlinkEncoder(system, component, heartbeat=False).encode(sample, message)

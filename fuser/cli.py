@@ -25,6 +25,7 @@ cannot run) or 1 (it started and failed). ``--verbose`` adds the traceback.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import ipaddress
 import logging
 import os
@@ -38,10 +39,11 @@ from functools import partial
 from pathlib import Path
 from typing import Any, Callable, NoReturn, Sequence
 
+from drivers.base import SourceError
 from drivers.scenarios import SCENARIOS
 from fuser.config import FuserConfig, load_config
-from fuser.outputs import add_options as add_output_options
 from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError
+from fuser.outputs import add_options as add_output_options
 
 __all__ = ["main"]
 
@@ -171,6 +173,16 @@ def _zenoh_subscribe_options(p: argparse.ArgumentParser) -> None:
                    help="the fuser's --zenoh-listen endpoint, connected to when --zenoh-connect is not given")
 
 
+def _link(parser: argparse.ArgumentParser) -> None:
+    g = parser.add_argument_group("MAVLink link", "which vehicle to fuse and how its frames are authenticated (see drivers/README.md)")
+    g.add_argument("--system", type=int, metavar="ID", help="vehicle system id (default: the first autopilot heard)")
+    g.add_argument("--component", type=int, metavar="ID", help="vehicle component id (default: that autopilot's)")
+    g.add_argument("--any-sender", action="store_true", help="use every sender's data, not only the first autopilot's")
+    g.add_argument("--signing-key-file", metavar="FILE", help="MAVLink 2 signing key (32 raw bytes, or a passphrase hashed "
+                   "with SHA-256 as MAVProxy does): unsigned and wrongly signed frames are refused")
+    g.add_argument("--dialect", metavar="NAME", help="pymavlink dialect (default: ardupilotmega)")
+
+
 def _add_sim(sub: Any) -> None:
     p = sub.add_parser("sim", help="fly the simulated vehicle through the live loop (no drone needed)",
                        description="Fly the built-in simulated multirotor (hover, turns, aggressive manoeuvres, a flip) "
@@ -215,6 +227,7 @@ def _add_run(sub: Any) -> None:
     _vehicle_option(p)
     _zenoh_publish_options(p)
     add_output_options(p)
+    _link(p)
     g = p.add_argument_group("inputs")
     g.add_argument("--mavlink", action="append", default=[], type=_mavlink_connection, metavar="CONN", help="MAVLink connection (repeatable)")
     g.add_argument("--baud", type=int, metavar="BAUD", help=f"serial baud rate of the serial --mavlink connections (default: {DEFAULT_BAUD})")
@@ -234,6 +247,7 @@ def _add_replay(sub: Any) -> None:
     _verbosity(p)
     _config_file(p)
     _fusion_options(p)
+    _link(p)
     p.add_argument("log", help="input log (.mcap or .tlog)")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
 
@@ -372,7 +386,11 @@ def _config(args: argparse.Namespace) -> FuserConfig:
             overrides[name] = tuple(getattr(args, name))
     if getattr(args, "attitude_sigma_deg", None) is not None:
         overrides["attitude_sigma_deg"] = args.attitude_sigma_deg
-    return load_config(args.config, **overrides)
+    config = load_config(args.config, **overrides)
+    link = {k: getattr(args, k) for k in ("system", "component", "signing_key_file", "dialect") if getattr(args, k, None) is not None}
+    if getattr(args, "any_sender", False):
+        link["lock_first_autopilot"] = False
+    return config.replace(link=dataclasses.replace(config.link, **link)) if link else config
 
 
 def _load_config(args: argparse.Namespace) -> FuserConfig | None:
@@ -408,9 +426,9 @@ def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
     return pub
 
 
-_SOURCE_ERRORS: tuple[type[BaseException], ...] = (OSError, ValueError, OverflowError)
-"""What opening a source raises for a link that is not there (pymavlink, pyserial, sockets); with python-can's
-CanError, and drivers.SourceError once the drivers raise it, added here."""
+_SOURCE_ERRORS: tuple[type[BaseException], ...] = (SourceError, OSError, ValueError, OverflowError)
+"""What opening a source raises for a link that is not there: the drivers' own SourceError (naming what is wrong),
+and what pymavlink, pyserial and sockets raise beneath them; python-can's CanError is added where it is caught."""
 
 
 def _reason(exc: BaseException) -> str:
@@ -498,6 +516,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
     if args.record:
         _check_output(args.record, "--record")
     from drivers.sources import DroneCanSource, MavlinkSource
+    from fuser.inputs import source_report
     from fuser.live import LiveRunner
     from fuser.pipeline import Pipeline
     from fuser.record import RecorderProcess
@@ -507,7 +526,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
         sources: dict[str, Any] = {}
         for conn in args.mavlink:
             options = {"baud": args.baud or DEFAULT_BAUD} if _is_serial(conn) else {}
-            sources[f"mavlink:{conn}"] = _open_source(stack, f"MAVLink {conn}", partial(MavlinkSource, conn, **options))
+            sources[f"mavlink:{conn}"] = _open_source(stack, f"MAVLink {conn}", partial(MavlinkSource, conn, config.link, **options))
         for spec in args.can:
             interface, _, channel = spec.partition(":")
             extra = {} if interface in CAN_WITHOUT_BITRATE else {"bitrate": args.bitrate or DEFAULT_BITRATE}
@@ -537,6 +556,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
         print(f"run: fusing {', '.join(sources)} at {config.rate_hz:g} Hz; Ctrl-C to stop", file=sys.stderr, flush=True)
         status = runner.run(args.duration)
     print(f"run: {status['estimates']} estimates; loop {status['loop']}; latency {status['latency']}")
+    _print_inputs(source_report(name, src) for name, src in sources.items())
     return 0
 
 
@@ -556,6 +576,7 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
           f"({summary.samples_per_s:,.0f} samples/s); {args.output}")
     if summary.counters:
         print("counters: " + ", ".join(f"{k}={v}" for k, v in sorted(summary.counters.items())))
+    _print_inputs([summary.inputs] if summary.inputs else [])
     _print_scores(args.output)
     return 0
 
@@ -616,6 +637,14 @@ def _cmd_report(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     for line in write_report(args.log, Path(args.output)):
         print(line)
     return 0
+
+
+def _print_inputs(reports) -> None:
+    """What each input gave, by reason, and a warning on stderr where little of it reached the loop."""
+    for report in reports:
+        print("\n".join(report.lines()))
+        if (warning := report.warning()) is not None:
+            print(warning, file=sys.stderr)
 
 
 def _print_scores(path: str) -> None:

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from drivers.link import LinkSettings
 from fuser.mavlink_out import MavlinkOutSettings
 from fuser.ros2 import Ros2Settings
 
@@ -123,6 +124,8 @@ class FuserConfig:
     zenoh_connect: tuple[str, ...] = ()
     record: str | None = None
     """MCAP file to record inputs and estimates to (None: do not record)."""
+    link: LinkSettings = LinkSettings()
+    """MAVLink vehicle selection, signing and dialect (``[fuser.link]``; see drivers/link.py)."""
     ros2: Ros2Settings = Ros2Settings()
     """ROS 2 output over rmw_zenoh (``[fuser.ros2]``; ``--ros2``): :mod:`fuser.ros2`."""
     mavlink_out: MavlinkOutSettings = MavlinkOutSettings()

@@ -1,42 +1,119 @@
-"""Samples from files and from the simulator (recorded MCAP inputs come from ``fuser.record.read_log``).
+"""Samples from files and from the simulator (recorded MCAP inputs come from ``fuser.record.read_log``),
+and the account of what became of an input's messages.
 
 * a MAVLink telemetry log (.tlog: each packet carries the receive time), as
-  ``(sample, receive_ns)`` in arrival order;
+  ``(sample, receive_ns)`` in arrival order, through the live decoder (:class:`TlogInputs`);
 * the simulated vehicle, encoded as MAVLink bytes or DroneCAN frames and
-  decoded by the real drivers, exactly as from an autopilot.
+  decoded by the real drivers, exactly as from an autopilot;
+* :class:`InputReport`: how many of the IMU messages an input carried reached the loop, and
+  everything else by reason, for the end of a ``replay`` or a ``run``.
 """
 
 from __future__ import annotations
 
-import os
+from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Callable, Iterator, Mapping
 
 from drivers.dronecan_decode import DroneCanDecoder
-from drivers.mavlink_decode import MavlinkDecoder
-from drivers.samples import Sample
+from drivers.link import LinkSettings
+from drivers.mavlink_decode import IMU_MESSAGES, MavlinkDecoder
+from drivers.samples import ImuSample, Sample
 from drivers.sim import Flight, dronecan_stream, mavlink_stream
+from drivers.tlog import TlogSource
 
-os.environ.setdefault("MAVLINK20", "1")
-from pymavlink import mavutil  # noqa: E402
-
-__all__ = ["sim_ticks", "tlog_inputs"]
+__all__ = ["InputReport", "TlogInputs", "sim_ticks", "source_report"]
 
 SIM_LINK_LATENCY_NS = 1_000_000
 """Receive time of a simulated sample: its send time plus this link latency."""
+USED_WARNING_FRACTION = 0.9
+"""Below this fraction of the decodable IMU messages reaching the loop, the report warns."""
+NOT_REFUSALS = ("accepted", "ignored")
+"""Counts in a decoder's ``stats`` that are not refusals."""
 
 
-def tlog_inputs(path: str | Path, dialect: str = "common") -> Iterator[tuple[Sample, int]]:
-    """Samples of a MAVLink .tlog with the receive time each packet was logged at."""
-    connection = mavutil.mavlink_connection(str(path), dialect=dialect)
-    decoder = MavlinkDecoder(dialect=dialect, parser=connection.mav)
-    try:
-        while (msg := connection.recv_msg()) is not None:
-            sample = decoder.decode_message(msg)
-            if sample is not None:
-                yield sample, round(msg._timestamp * 1e9)
-    finally:
-        connection.close()
+@dataclass(frozen=True)
+class InputReport:
+    """What an input gave: its decodable IMU messages, how many reached the loop, and every count by reason.
+
+    ``imu_decodable`` counts the valid IMU messages on the input (every sender, as pymavlink alone
+    decodes them); ``imu_used`` the IMU samples the loop took in time (``None`` where only the
+    decoder's view is known: samples accepted). ``stats`` is the decoder's (and the log reader's).
+    """
+
+    name: str
+    imu_decodable: int
+    imu_used: int
+    stats: Mapping[str, int]
+
+    @property
+    def refused(self) -> dict[str, int]:
+        return {k: v for k, v in sorted(self.stats.items()) if k not in NOT_REFUSALS and v}
+
+    def lines(self) -> list[str]:
+        """One line of use, one of refusals by reason (what ``replay`` and ``run`` print at the end)."""
+        share = f" ({100 * self.imu_used / self.imu_decodable:.1f}%)" if self.imu_decodable else ""
+        used = f"{self.name}: {self.imu_used:,} of {self.imu_decodable:,} IMU messages used{share}; "
+        used += f"{self.stats.get('accepted', 0):,} samples accepted, {self.stats.get('ignored', 0):,} messages ignored"
+        refused = ", ".join(f"{k}={v:,}" for k, v in self.refused.items())
+        return [used, f"{self.name}: not used: {refused or 'nothing'}"]
+
+    def warning(self) -> str | None:
+        """A warning when less than 90% of the decodable IMU messages reached the loop."""
+        if not self.imu_decodable or self.imu_used >= USED_WARNING_FRACTION * self.imu_decodable:
+            return None
+        return (f"warning: {self.name}: only {self.imu_used:,} of {self.imu_decodable:,} decodable IMU messages "
+                f"({100 * self.imu_used / self.imu_decodable:.0f}%) reached the loop; see 'not used' for why")
+
+
+def _imu_decodable(decoder: MavlinkDecoder) -> int:
+    return sum(decoder.received[m] for m in IMU_MESSAGES)
+
+
+class TlogInputs:
+    """A .tlog's samples with their receive times (iterate), through the live decoder with ``link``.
+
+    Feed them with :meth:`feed` to count the IMU samples the loop takes in time for :meth:`report`.
+    """
+
+    def __init__(self, path: str | Path, link: LinkSettings | None = None) -> None:
+        self.source = TlogSource(path, link)
+        self.name = Path(path).name
+        self.imu_used = 0
+
+    def __iter__(self) -> Iterator[tuple[Sample, int]]:
+        try:
+            yield from self.source.samples()
+        finally:
+            self.source.close()
+
+    def feeder(self, pipeline: Any) -> Callable[[Sample, int], None]:
+        """``pipeline.feed`` that also counts the IMU samples the loop did not drop as late."""
+        counters = pipeline.loop.counters
+
+        def feed(sample: Sample, receive_ns: int) -> None:
+            late = counters["late"]
+            pipeline.feed(sample, receive_ns)
+            if isinstance(sample, ImuSample) and counters["late"] == late:
+                self.imu_used += 1
+
+        return feed
+
+    def report(self) -> InputReport:
+        return InputReport(self.name, _imu_decodable(self.source.decoder), self.imu_used, dict(self.stats))
+
+    @property
+    def stats(self) -> Counter[str]:
+        return self.source.stats
+
+
+def source_report(name: str, source: Any) -> InputReport:
+    """The decoder's view of a live source (IMU samples accepted, not what the loop took)."""
+    decoder = source.decoder
+    decodable = _imu_decodable(decoder) if isinstance(decoder, MavlinkDecoder) else 0
+    used = sum(decoder.used[m] for m in IMU_MESSAGES) if isinstance(decoder, MavlinkDecoder) else 0
+    return InputReport(name, decodable, used, dict(source.stats))
 
 
 def sim_ticks(flight: Flight, transport: str = "mavlink") -> Iterator[tuple[int, object, list[Sample]]]:

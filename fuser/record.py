@@ -234,7 +234,7 @@ class McapRecorder:
     def __init__(self, path: str | Path, chunk_size: int = 64 * 1024, metadata: dict[str, str] | None = None) -> None:
         self._file = open(path, "wb")
         self._output = _ChunkOutput(self._file)
-        self._writer = Writer(self._output, chunk_size=chunk_size, compression=CompressionType.ZSTD)  # type: ignore[arg-type]
+        self._writer = Writer(self._output, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_data_crcs=True)  # type: ignore[arg-type]
         self._writer.start(profile="", library="bingham-fuser")
         if metadata:
             self._writer.add_metadata("bingham_fuser", dict(sorted(metadata.items())))

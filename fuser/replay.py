@@ -30,7 +30,7 @@ from drivers.samples import Sample
 from fuser.codec import decode_sample
 from fuser.config import FuserConfig
 from fuser.errors import FuserError, NotALogError
-from fuser.inputs import tlog_inputs
+from fuser.inputs import InputReport, TlogInputs
 from fuser.mcap_scan import RawMessage, Skipped
 from fuser.progress import progress_bar
 from fuser.record import INPUT_TOPICS, LogContents, McapRecorder, read_log
@@ -60,6 +60,8 @@ class ReplaySummary:
     """What a damaged MCAP log lost (chunks, bytes, messages), or None if nothing was skipped."""
     not_recorded: dict[str, int] = field(default_factory=dict)
     """Records the output could not hold, by reason (``McapRecorder.rejected``: a time outside uint64, NaN)."""
+    inputs: InputReport | None = None
+    """A .tlog's account: decodable IMU messages, those the loop took, everything refused by reason."""
 
     @property
     def samples_per_s(self) -> float:
@@ -121,13 +123,16 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     try:
         with McapRecorder(partial, metadata={**provenance, "source_log": log.name}) as recorder:
             pipeline = Pipeline(config, [], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
-            if messages is None:
+            tlog = TlogInputs(log, config.link) if messages is None else None
+            if tlog is not None:
                 pipeline.inputs.append(recorder.write_sample)
-                inputs: Iterable[tuple[Sample, int]] = progress_bar(tlog_inputs(log), None, "replay", " samples", progress)
+                feed = tlog.feeder(pipeline)
+                inputs: Iterable[tuple[Sample, int]] = progress_bar(tlog, None, "replay", " samples", progress)
             else:
+                feed = pipeline.feed
                 inputs = _copied_inputs(progress_bar(messages, len(messages), "replay", " samples", progress), pipeline, recorder)
             for sample, receive_ns in inputs:
-                pipeline.feed(sample, receive_ns)
+                feed(sample, receive_ns)
                 samples += 1
             pipeline.finish()
             if contents is not None:
@@ -142,4 +147,5 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     counters = dict(pipeline.loop.counters) | dict(pipeline.loop.model.counters)
     incomplete = None if contents is None or contents.complete else contents.error
     skipped = contents.skipped if contents is not None and contents.skipped else None
-    return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters, incomplete, skipped, dict(recorder.rejected))
+    return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters, incomplete, skipped, dict(recorder.rejected),
+                         None if tlog is None else tlog.report())

@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as apm
 from pymavlink.dialects.v20 import common as mav_common
 
-from drivers import DroneCanDecoder, MavlinkDecoder, SourceId
+from drivers import DroneCanDecoder, LinkSettings, MavlinkDecoder, SourceId
 from drivers.dronecan_decode import RAW_IMU, data_type
 from drivers.timebase import StreamClock
 from drivers.validation import Rejected
@@ -49,7 +49,7 @@ GOOD_T = 2_000_000_000
         (imu_frame(1_000_000)[:20] + b"\x55" + imu_frame(1_000_000)[21:], "bad_crc"),
         (b"\xfd\x30\x00\x00\x00\x01\x01\x05\x00\x00" + b"\x00" * 3, "bad_crc"),  # false header in garbage
         (b"\xfd\x09\x04\x00\x00\x01\x01\x1e\x00\x00" + b"\x00" * 11, "bad_frame"),  # unknown incompat flag
-        (bytes(apm.MAVLink_ahrs_message(0, 0, 0, 0, 0, 0, 0).pack(apm.MAVLink(None))), "unknown_message"),
+        (b"\xfd\x03\x00\x00\x07\x01\x01\xee\xff\x00\x01\x02\x03\x12\x34", "unknown_message"),  # id 65518: in no dialect
         (imu_frame(1_000_000, gyro=(math.nan, 0.0, 0.0)), "non_finite"),
         (imu_frame(1_000_000, accel=(0.0, math.inf, 0.0)), "non_finite"),
         (imu_frame(1_000_000, gyro=(0.0, 0.0, 40.0)), "gyro_out_of_range"),
@@ -64,6 +64,14 @@ def test_mavlink_bad_input_is_counted_and_the_next_frame_decodes(bad, reason):
     assert decoder.stats["accepted"] == 1
 
 
+@pytest.mark.parametrize("dialect, reason", [("ardupilotmega", "ignored"), ("common", "unknown_message")])
+def test_ardupilot_messages_are_ignored_in_their_dialect_and_unknown_in_common(dialect, reason):
+    ahrs = bytes(apm.MAVLink_ahrs_message(0, 0, 0, 0, 0, 0, 0).pack(apm.MAVLink(None, srcSystem=1, srcComponent=1)))
+    decoder = MavlinkDecoder(LinkSettings(lock_first_autopilot=False, dialect=dialect))
+    assert times_of(decoder.feed(ahrs + GOOD)) == [GOOD_T]
+    assert decoder.stats[reason] == 1
+
+
 def test_quaternion_far_from_unit_norm_is_refused():
     decoder = MavlinkDecoder()
     out = decoder.feed(quat_frame(10, (2.0, 0.0, 0.0, 0.0)) + quat_frame(20, (1.0, 0.0, 0.0, 0.0)))
@@ -71,9 +79,10 @@ def test_quaternion_far_from_unit_norm_is_refused():
     assert decoder.stats["quaternion_norm"] == 1
 
 
-def test_valid_packet_right_after_a_false_header_is_not_lost():
+@pytest.mark.parametrize("link", [None, LinkSettings(system=1, component=1)])
+def test_valid_packet_right_after_a_false_header_is_not_lost(link):
     # 0xFD followed by a length of 0x40 would swallow the next 76 bytes in pymavlink alone.
-    decoder = MavlinkDecoder()
+    decoder = MavlinkDecoder(link)
     stream = b"\xfd\x40" + imu_frame(1_000_000) + imu_frame(1_002_500, seq=1)
     assert times_of(decoder.feed(stream)) == [1_000_000_000, 1_002_500_000]
 
@@ -131,11 +140,13 @@ def test_each_reason_is_logged_once_per_interval(caplog):
 @given(
     garbage=st.lists(st.binary(max_size=120), min_size=4, max_size=4),
     cuts=st.lists(st.integers(0, 600), max_size=6),
+    locked=st.booleans(),
 )
-def test_mavlink_fuzz_garbage_between_valid_frames(garbage, cuts):
+def test_mavlink_fuzz_garbage_between_valid_frames(garbage, cuts, locked):
+    """Any split, any garbage; with the vehicle chosen (other senders' frames screened) as without."""
     valid = [imu_frame(1_000_000 + 2500 * i, seq=i) for i in range(3)]
     stream = garbage[0] + valid[0] + garbage[1] + valid[1] + garbage[2] + valid[2] + garbage[3] + b"\x00" * 300
-    decoder = MavlinkDecoder()
+    decoder = MavlinkDecoder(LinkSettings(system=1, component=1) if locked else None)
     out = []
     start = 0
     for cut in sorted(cuts) + [len(stream)]:  # any split of the stream into reads
@@ -232,3 +243,105 @@ def test_dronecan_fuzz_random_frames_between_transfers(junk):
     decoder = DroneCanDecoder()
     out = feed_all(decoder, frames[:half] + raw_imu_frames(1_000_000, 1) + frames[half:] + NEXT)
     assert times_of(out) == [1_000_000_000, 2_000_000_000]
+
+
+# ---------------------------------------------------------------- times at the boundary
+
+def imu_from(system: int, time_usec: int, seq: int = 0, instance: int = 0) -> bytes:
+    msg = mav_common.MAVLink_highres_imu_message(time_usec, 0, 0, -9.81, 0, 0, 0, 0.2, 0, 0.4, 0, 0, 0, 0, 0x1FF, instance)
+    mav = mav_common.MAVLink(None, srcSystem=system, srcComponent=1)
+    mav.seq = seq
+    return bytes(msg.pack(mav))
+
+
+def test_a_first_sample_at_2_to_the_63_us_is_refused_and_the_recorder_stores_the_rest(tmp_path):
+    """Issue 12: a HIGHRES_IMU from a new system id with time_usec = 2^63 overflowed the MCAP writer's uint64."""
+    from fuser.record import McapRecorder, read_log
+
+    decoder = MavlinkDecoder()
+    out = decoder.feed(imu_from(1, 1_000_000) + imu_from(9, 2**63) + imu_from(1, 1_002_500, seq=1))
+    assert times_of(out) == [1_000_000_000, 1_002_500_000]
+    assert decoder.stats["time_out_of_range"] == 1
+    with McapRecorder(tmp_path / "r.mcap") as rec:
+        for s in out:
+            rec.write_sample(s, s.t_ns + 1_000_000)
+    assert [s.t_ns for s, _ in read_log(tmp_path / "r.mcap").inputs()] == times_of(out)
+
+
+def test_a_new_streams_first_time_far_from_its_senders_clock_waits_for_confirmation():
+    decoder = MavlinkDecoder()
+    att = mav_common.MAVLink_attitude_message
+    mav = mav_common.MAVLink(None, srcSystem=1, srcComponent=1)
+    hour_ms = 3_600_000
+    stream = imu_frame(100_000_000) + bytes(att(100_000 + hour_ms, 0, 0, 0, 0, 0, 0).pack(mav))  # boot clocks 1 h apart
+    assert times_of(decoder.feed(stream)) == [100_000_000_000]
+    assert decoder.stats["time_implausible"] == 1
+    # a second ATTITUDE on the same time line confirms it (a sender whose clocks truly differ)
+    (s,) = decoder.feed(bytes(att(100_010 + hour_ms, 0, 0, 0, 0, 0, 0).pack(mav)))
+    assert s.t_ns == (100_010 + hour_ms) * 1_000_000
+
+
+def test_unix_and_boot_clocks_of_one_sender_are_not_compared():
+    """GPS_RAW_INT's time_usec is Unix time on ArduPilot (>= 10^15 us), the IMU's time since boot."""
+    gps = mav_common.MAVLink_gps_raw_int_message(1_700_000_000_000_000, 3, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+    decoder = MavlinkDecoder()
+    out = decoder.feed(imu_frame(100_000_000) + bytes(gps.pack(mav_common.MAVLink(None, srcSystem=1, srcComponent=1))))
+    assert times_of(out) == [100_000_000_000, 1_700_000_000_000_000_000]
+
+
+def test_a_can_frame_with_a_nonsense_receive_time_is_refused():
+    mag = data_type("uavcan.equipment.ahrs.MagneticFieldStrength2")(sensor_id=0, magnetic_field_ga=[0.2, 0.0, 0.4])
+    (f,) = Transfer(payload=mag, source_node_id=NODE, transfer_id=0, transfer_priority=20).to_frames()
+    decoder = DroneCanDecoder()
+    for t in (math.nan, -1.0, 2.0**62):
+        decoder.feed(can.Message(arbitration_id=f.message_id, data=f.bytes, is_extended_id=True, timestamp=t))
+    assert decoder.stats["time_out_of_range"] == 3
+
+
+# ---------------------------------------------------------------- sequence numbers
+
+@pytest.mark.parametrize(
+    "seqs, lost",
+    [
+        ([0, 1, 2, 5, 6], 2),
+        ([253, 254, 255, 0, 1], 0),  # wrap-around
+        ([254, 1, 2], 2),  # a gap across the wrap
+        ([10, 11, 11, 12], 0),  # a repeated frame
+        ([10, 12, 11, 13], 1),  # reordered: 11 was counted missing when 12 came; late, it changes nothing
+        ([0, 1, 130, 131], 0),  # a step of more than 128 is a step back (a restart or a jump), not a loss
+        ([100, 101, 40, 41, 43], 1),  # after a step back by more than 16 the sequence continues from there
+    ],
+)
+def test_sequence_gaps_are_counted_as_lost(seqs, lost):
+    decoder = MavlinkDecoder()
+    decoder.feed(b"".join(imu_frame(1_000_000 + 2500 * i, seq=s) for i, s in enumerate(seqs)))
+    assert decoder.stats["lost"] == lost
+
+
+def test_a_reboot_restarts_the_sequence_without_counting_a_loss():
+    decoder = MavlinkDecoder()
+    before = [imu_frame(100_000_000 + 2500 * i, seq=190 + i) for i in range(10)]  # up to seq 199
+    after = [imu_frame(3_000_000 + 2500 * i, seq=i) for i in range(10)]  # booted again: time and seq from the start
+    decoder.feed(b"".join(before + after))
+    assert decoder.stats["lost"] == 0 and decoder.stats["reboot"] == 1
+
+
+def test_a_loss_just_before_a_reboot_is_dropped_but_one_after_it_counts():
+    decoder = MavlinkDecoder()
+    frames = [imu_frame(100_000_000, seq=50), imu_frame(100_002_500, seq=51)]
+    frames += [imu_frame(3_000_000 + 2500 * i, seq=s) for i, s in enumerate([0, 1, 2, 3, 7, 8])]  # 4, 5, 6 lost after the reboot
+    decoder.feed(b"".join(frames))
+    assert decoder.stats["lost"] == 3
+
+
+def test_after_a_reboot_the_stream_continues_by_the_receive_time_that_passed():
+    """An autopilot at 100 s of uptime reboots; 8 s of receive time later it sends again from 3 s.
+    The stream goes on 8 s (plus its own step) after its last time, where a receiver expects it."""
+    decoder = MavlinkDecoder()
+    rx0 = 5_000 * SEC
+    before = [(100_000_000 + 10_000 * i, rx0 + 10_000_000 * i) for i in range(3)]  # (time_usec, receive_ns)
+    after = [(3_000_000 + 10_000 * i, rx0 + 20_000_000 + 8 * SEC + 10_000_000 * i) for i in range(3)]
+    out = [s.t_ns for t, rx in before + after for s in decoder.feed(imu_frame(t), rx)]
+    last = 100_020_000_000
+    assert out == [100_000_000_000, 100_010_000_000, last, last + 8 * SEC + 10_000_000, last + 8 * SEC + 20_000_000]
+    assert decoder.stats["reboot"] == 1

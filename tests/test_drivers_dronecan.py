@@ -60,16 +60,36 @@ def test_solution_orientation_xyzw_becomes_wxyz():
     assert s.t_ns == 7_000_000
 
 
-def test_magnetic_field_strength2_takes_time_from_the_bus_time_base():
+def test_magnetic_field_strength2_takes_time_from_its_nodes_time_base():
     decoder = DroneCanDecoder()
-    # A RawIMU stamped 5.0 s (sender) received at 1000.0 s: the bus time base is 995 s behind receive time.
-    decode(frames_of(data_type(RAW_IMU)(timestamp=stamp(5_000_000)), 21, rx_time=1000.0), decoder)
+    # A RawIMU stamped 5.0 s (sender) received at 1000.0 s: node 60's time base is 995 s behind receive time.
+    decode(frames_of(data_type(RAW_IMU)(timestamp=stamp(5_000_000)), 60, rx_time=1000.0), decoder)
     mag = data_type(MAG_FIELD)(sensor_id=3, magnetic_field_ga=[0.21, -0.02, 0.43])
     (s,) = decode(frames_of(mag, 60, rx_time=1000.25), decoder)
     assert isinstance(s, MagSample)
-    assert s.t_ns == pytest.approx(5_250_000_000, abs=1000)
+    assert s.t_ns == 5_250_000_000
     assert s.mag_gauss == (f16(0.21), f16(-0.02), f16(0.43))
     assert s.source == SourceId("dronecan", 60, 0, 3)
+
+
+def test_two_nodes_with_different_clocks_each_time_their_own_magnetometer():
+    """Node 21's clock is 995 s behind receive time, node 22's 400 s ahead: interleaved at 50 Hz for 2 s,
+    every magnetometer sample of each node is placed on its own node's clock, none refused."""
+    decoder = DroneCanDecoder()
+    mags: dict[int, list[int]] = {21: [], 22: []}
+    for k in range(100):
+        rx = 1000.0 + 0.02 * k
+        for node, offset_s in ((21, -995.0), (22, 400.0)):  # both IMUs, then both magnetometers
+            imu = data_type(RAW_IMU)(timestamp=stamp(round((rx + offset_s) * 1e6)))
+            decode(frames_of(imu, node, tid=k % 32, rx_time=rx), decoder)
+        for node in (21, 22):
+            mag = data_type(MAG_FIELD)(sensor_id=0, magnetic_field_ga=[0.2, 0.0, 0.4])
+            (s,) = decode(frames_of(mag, node, tid=k % 32, rx_time=rx + 0.005), decoder)
+            mags[node].append(s.t_ns)
+    for node, offset_s in ((21, -995.0), (22, 400.0)):
+        want = [round((1000.0 + 0.02 * k + 0.005 + offset_s) * 1e9) for k in range(100)]
+        assert mags[node] == pytest.approx(want, abs=2_000)  # float seconds of the frame's receive time
+    assert decoder.stats["accepted"] == 400 and set(decoder.stats) == {"accepted"}
 
 
 @pytest.mark.parametrize(

@@ -15,7 +15,17 @@ import pytest
 from pymavlink.dialects.v20 import common as mav_common
 
 from core import quaternion as cq
-from drivers import AttitudeSample, ImuSample, MavlinkDecoder, MavlinkEncoder, MavlinkSource, SourceId, encode_mavlink
+from drivers import (
+    AttitudeSample,
+    ImuSample,
+    LinkSettings,
+    MavlinkDecoder,
+    MavlinkEncoder,
+    MavlinkSource,
+    SourceId,
+    TlogSource,
+    encode_mavlink,
+)
 from drivers.euler import euler_from_quaternion, quaternion_from_euler
 
 G = 9.80665
@@ -135,7 +145,7 @@ def test_time_boot_ms_wraps_around_without_a_reboot():
 
 def test_filters_by_system_and_component():
     msg = mav_common.MAVLink_attitude_message(1, 0, 0, 0, 0, 0, 0)
-    decoder = MavlinkDecoder(system=2, component=1)
+    decoder = MavlinkDecoder(LinkSettings(system=2, component=1))
     out = decoder.feed(frame(msg, system=1) + frame(msg, system=2, component=5) + frame(msg, system=2, component=1))
     assert [s.source.system for s in out] == [2]
     assert decoder.stats["other_sender"] == 2
@@ -157,7 +167,7 @@ def test_tlog_file(tmp_path):
     with open(path, "wb") as f:
         for i, s in enumerate(truth):  # tlog record: 8-byte big-endian unix time in us, then the packet
             f.write(struct.pack(">Q", 1_700_000_000_000_000 + i * 2500) + encoder.encode(s))
-    with MavlinkSource(str(path)) as source:
+    with TlogSource(path) as source:
         got = []
         while not source.exhausted:
             got += source.poll(0.1)
@@ -171,6 +181,10 @@ SENDER = textwrap.dedent(
     os.environ["MAVLINK20"] = "1"
     from pymavlink import mavutil
     conn = mavutil.mavlink_connection("udpout:127.0.0.1:" + sys.argv[1], source_system=9, source_component=1, dialect="common")
+    gcs = mavutil.mavlink_connection("udpout:127.0.0.1:" + sys.argv[1], source_system=255, source_component=190, dialect="common")
+    gcs.mav.heartbeat_send(6, 8, 0, 0, 0)  # a ground station (MAV_TYPE_GCS, MAV_AUTOPILOT_INVALID) is heard first
+    gcs.mav.highres_imu_send(5, 0.0, 0.0, -9.81, 9.0, 0.0, 0.0, 0.2, 0.0, 0.4, 0, 0, 0, 0, 0x1FF, 0)
+    conn.mav.heartbeat_send(2, 3, 0, 0, 4)  # the vehicle: MAV_TYPE_QUADROTOR, MAV_AUTOPILOT_ARDUPILOTMEGA
     for i in range(50):
         conn.mav.highres_imu_send(1_000_000 + 2500 * i, 0.0, 0.0, -9.81, 0.001 * i, 0.0, 0.0, 0.2, 0.0, 0.4, 0, 0, 0, 0, 0x1FF, 0)
         time.sleep(0.001)
@@ -197,3 +211,4 @@ def test_live_udp_from_another_process():
     assert [s.t_ns for s in got] == [(1_000_000 + 2500 * i) * 1000 for i in range(50)]
     assert [s.gyro_rad_s[0] for s in got] == pytest.approx([0.001 * i for i in range(50)], abs=1e-7)
     assert all(s.source == SourceId("mavlink", 9, 1, 0) for s in got)
+    assert source.stats["no_vehicle_yet"] == 2  # the ground station's HEARTBEAT and IMU, before any autopilot

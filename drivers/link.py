@@ -1,0 +1,105 @@
+"""Which vehicle a MAVLink link is read from, and how its frames are authenticated: ``LinkSettings``.
+
+Vehicle selection. A link carries more than the vehicle: a ground station's HEARTBEATs, a
+companion computer, a gimbal, a second vehicle, or anyone who can reach the port. By default
+the decoder waits for the first HEARTBEAT of an autopilot (a vehicle ``MAV_TYPE``, ``autopilot``
+not ``MAV_AUTOPILOT_INVALID``, not from a gimbal component: pymavlink's own
+``probably_vehicle_heartbeat`` rule, with every peripheral type excluded) and takes data from
+that (system, component) only; everyone else's data is counted as ``other_sender``, and data
+that arrives before any autopilot is heard as ``no_vehicle_yet``.
+
+Signing (MAVLink 2 message signing, MAVLink developer guide "Message Signing"). With a key,
+only frames whose signature verifies are used; pymavlink's ``MAVLink.signing`` does the
+cryptography (SHA-256 over key, header, payload, CRC, link id and timestamp, first 48 bits).
+The key file holds either exactly 32 bytes, the raw secret key, or a passphrase (UTF-8 text,
+surrounding whitespace and the final newline removed) whose SHA-256 digest is the key, as
+MAVProxy's ``signing setup PASSPHRASE`` and Mission Planner derive it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import os
+import re
+from dataclasses import dataclass, fields
+from typing import Any, Mapping
+
+from .base import SourceError
+
+__all__ = ["LinkSettings", "SIGNING_KEY_BYTES"]
+
+SIGNING_KEY_BYTES = 32
+"""Length of a MAVLink 2 secret key (the SETUP_SIGNING message's ``secret_key``)."""
+_DIALECT_NAME = re.compile(r"[A-Za-z0-9_]+")
+
+
+def _check_id(key: str, value: Any) -> None:
+    if value is not None and (type(value) is not int or not 1 <= value <= 255):
+        raise ValueError(f"link.{key}: a MAVLink id from 1 to 255 (or unset), got {value!r}")
+
+
+@dataclass(frozen=True)
+class LinkSettings:
+    """The vehicle a MAVLink link is read from, its signing key and its dialect (validated here)."""
+
+    system: int | None = None
+    """System id (1-255) of the vehicle to fuse. Unset: the first autopilot heard, if
+    ``lock_first_autopilot``, else every sender."""
+    component: int | None = None
+    """Component id (1-255). Unset: the locked autopilot's own component, or, with ``system``
+    given, any component of that system."""
+    lock_first_autopilot: bool = True
+    """With ``system`` unset, use only the (system, component) of the first autopilot HEARTBEAT.
+    False: use every sender (a bench with one known sender)."""
+    signing_key_file: str | None = None
+    """File with the MAVLink 2 signing key (32 raw bytes, or a passphrase: see the module docstring).
+    Set: unsigned and wrongly signed frames are refused."""
+    dialect: str = "ardupilotmega"
+    """pymavlink dialect of the link (``ardupilotmega`` is a superset of ``common``)."""
+
+    def __post_init__(self) -> None:
+        _check_id("system", self.system)
+        _check_id("component", self.component)
+        if type(self.lock_first_autopilot) is not bool:
+            raise ValueError(f"link.lock_first_autopilot: true or false, got {self.lock_first_autopilot!r}")
+        if isinstance(self.signing_key_file, os.PathLike):
+            object.__setattr__(self, "signing_key_file", os.fspath(self.signing_key_file))
+        if self.signing_key_file is not None and (not isinstance(self.signing_key_file, str) or not self.signing_key_file):
+            raise ValueError(f"link.signing_key_file: a file name (or unset), got {self.signing_key_file!r}")
+        if not isinstance(self.dialect, str) or not _DIALECT_NAME.fullmatch(self.dialect) or (
+            importlib.util.find_spec(f"pymavlink.dialects.v20.{self.dialect}") is None
+        ):
+            raise ValueError(f"link.dialect: the name of a pymavlink dialect (e.g. ardupilotmega, common), got {self.dialect!r}")
+
+    @classmethod
+    def from_table(cls, table: Mapping[str, Any]) -> LinkSettings:
+        """Settings from a TOML table (``[fuser.link]``); an unknown key is an error naming it."""
+        if not isinstance(table, Mapping):
+            raise ValueError(f"link: a table of settings ([fuser.link]), got {table!r}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(table) - known)
+        if unknown:
+            raise ValueError(f"unknown setting(s): {', '.join('link.' + k for k in unknown)}")
+        return cls(**table)
+
+    def signing_key(self) -> bytes | None:
+        """The 32-byte secret key read from ``signing_key_file`` (None without one); ``SourceError`` if unreadable."""
+        if self.signing_key_file is None:
+            return None
+        try:
+            with open(self.signing_key_file, "rb") as f:
+                data = f.read(4096)
+        except OSError as exc:
+            raise SourceError(f"link.signing_key_file: cannot read {self.signing_key_file}: {exc.strerror}") from exc
+        if len(data) == SIGNING_KEY_BYTES:
+            return data
+        try:
+            passphrase = data.decode("utf-8").strip()
+        except UnicodeDecodeError as exc:
+            raise SourceError(
+                f"link.signing_key_file: {self.signing_key_file} is neither a 32-byte key nor a UTF-8 passphrase"
+            ) from exc
+        if not passphrase:
+            raise SourceError(f"link.signing_key_file: {self.signing_key_file} is empty")
+        return hashlib.sha256(passphrase.encode("utf-8")).digest()
