@@ -592,6 +592,7 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     from fuser.errors import NotALogError
     from fuser.dataflash import read_dataflash
     from fuser.importers import detect_format, read_broad, read_px4, write_mcap
+    from fuser.inputs import NOT_REFUSALS
 
     if not Path(args.source).is_file():
         raise UsageError(f"import: no such file: {args.source}")
@@ -614,7 +615,7 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     if s.skipped:
         print(f"not imported: {s.skipped}")
     print(f"reference field (N, E, D gauss): {s.mag_field_ned_gauss}" + (f"; replay with --config {s.config_path}" if s.config_path else ""))
-    refused = {k: v for k, v in s.decoder_stats.items() if k != "accepted" and v}
+    refused = {k: v for k, v in s.decoder_stats.items() if k not in NOT_REFUSALS and v}
     if refused:
         print(f"decoder refused: {refused}")
     return 0

@@ -162,5 +162,5 @@ def _group(cls: type, name: str, values: dict[str, Any], path: str | Path | None
     """A settings group from its TOML table ``[fuser.<name>]``; unknown keys are an error naming them."""
     unknown = sorted(set(values) - {f.name for f in dataclasses.fields(cls)})
     if unknown:
-        raise ValueError(f"unknown setting(s) in [fuser.{name}] of {path}: {', '.join(unknown)}")
+        raise ValueError(f"unknown setting(s) in [fuser.{name}] of {path}: {', '.join(f'{name}.{k}' for k in unknown)}")
     return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})

@@ -139,7 +139,8 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
                 for truth in contents.of(["/truth/pose"]):
                     recorder.write_message(*truth)
         if samples == 0:
-            raise ReplayError(f"nothing to replay in {log}: no IMU, magnetometer, attitude or GNSS message could be decoded")
+            refused = "" if tlog is None else "; not used: " + (", ".join(f"{k}={v:,}" for k, v in tlog.report().refused.items()) or "nothing")
+            raise ReplayError(f"nothing to replay in {log}: no IMU, magnetometer, attitude or GNSS message could be decoded{refused}")
         os.replace(partial, out)
     except BaseException:
         partial.unlink(missing_ok=True)

@@ -107,11 +107,13 @@ def test_companion_rate_log_replays_every_imu_message(tmp_path):
     assert report.warning() is None
 
 
-def test_the_wrong_vehicle_is_warned_about(telemetry_log, tmp_path, capsys):
-    assert main(["replay", str(telemetry_log.path), "-o", str(tmp_path / "out.mcap"), "--system", "7"]) == 0
-    out, err = capsys.readouterr()
-    assert "0 of" in out and "other_sender=" in out
-    assert "warning: telemetry.tlog: only 0 of" in err
+def test_the_wrong_vehicle_is_one_line_naming_why(telemetry_log, tmp_path, capsys):
+    """--system 7 on a log of system 1: nothing to fuse, so a runtime error (exit 1) whose one line says why."""
+    assert main(["replay", str(telemetry_log.path), "-o", str(tmp_path / "out.mcap"), "--system", "7"]) == 1
+    _, err = capsys.readouterr()
+    assert len(err.strip().splitlines()) == 1
+    assert "nothing to replay" in err and "other_sender=" in err
+    assert not (tmp_path / "out.mcap").exists()
 
 
 # ---------------------------------------------------------------- record framing, hand-built

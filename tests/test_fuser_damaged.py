@@ -173,6 +173,8 @@ def test_a_tlog_sample_the_output_cannot_hold_is_left_out_and_counted(tmp_path: 
     with open(tlog, "wb") as f:
         for k in range(n):
             t_us = 1_700_000_000_000_000 + k * 10_000
+            if k % 100 == 0:  # the autopilot's heartbeat, once a second: the fuser locks onto this vehicle
+                f.write((t_us - 1).to_bytes(8, "big") + vehicle.heartbeat_encode(2, 3, 0, 0, 4).pack(vehicle))
             packet = vehicle.highres_imu_encode(5_000_000 + k * 10_000, 0, 0, -9.81, 0.01, 0, 0, 0.21, 0, 0.43, 1013, 0, 0, 20, 0x1FF)
             f.write(t_us.to_bytes(8, "big") + packet.pack(vehicle))
             if k == spoof_at:

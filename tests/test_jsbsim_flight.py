@@ -146,4 +146,4 @@ def test_flight_goes_through_the_mavlink_encoders_and_decoders(short):
     assert len(gnss) == len(short.gnss.t_ns) and 9 * 29 < len(gnss) <= 10 * 30  # 10 Hz, the last fixes still in flight
     speed = np.hypot(short.gnss.vel_ned_m_s[:, 0], short.gnss.vel_ned_m_s[:, 1])
     np.testing.assert_allclose([math.hypot(*s.vel_ned_m_s[:2]) for s in gnss], speed, atol=0.006)  # cm/s on the wire
-    assert set(decoder.stats) == {"accepted"}
+    assert set(decoder.stats) <= {"accepted", "ignored"}  # nothing refused; ignored: the autopilot's heartbeats
