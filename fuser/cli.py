@@ -128,13 +128,14 @@ def _parser() -> argparse.ArgumentParser:
 def _config(args: argparse.Namespace) -> FuserConfig:
     overrides: dict[str, Any] = {"vehicle": args.vehicle, "rate_hz": args.rate_hz}
     if args.no_mag:
-        overrides["use_mag"] = False
-    for name in ("zenoh_listen", "zenoh_connect"):
-        if getattr(args, name, None):
-            overrides[name] = tuple(getattr(args, name))
+        overrides["mag.enabled"] = False
+    for name in ("listen", "connect"):
+        if getattr(args, f"zenoh_{name}", None):
+            overrides[f"zenoh.{name}"] = tuple(getattr(args, f"zenoh_{name}"))
     if getattr(args, "attitude_sigma_deg", None) is not None:
-        overrides["attitude_sigma_deg"] = args.attitude_sigma_deg
-    return load_config(args.config, **overrides)
+        overrides["attitude.mode"] = "always"
+        overrides["attitude.sigma_deg"] = args.attitude_sigma_deg
+    return load_config(args.config, overrides)
 
 
 def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
@@ -142,7 +143,7 @@ def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
         return None
     from fuser.publish import ZenohPublisher, zenoh_config
 
-    pub = ZenohPublisher(zenoh_config(list(config.zenoh_listen), list(config.zenoh_connect)), config.vehicle)
+    pub = ZenohPublisher(zenoh_config(list(config.zenoh.listen), list(config.zenoh.connect)), config.vehicle)
     stack.callback(pub.close)
     return pub
 
@@ -274,7 +275,7 @@ def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.publish import listen, zenoh_config
 
     # a listener connects to the fuser's endpoint unless told otherwise
-    connect = list(config.zenoh_connect) or list(config.zenoh_listen)
+    connect = list(config.zenoh.connect) or list(config.zenoh.listen)
     listen(zenoh_config(listen=[], connect=connect), config.vehicle, json_output=args.json, count=args.count)
     return 0
 

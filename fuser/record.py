@@ -113,6 +113,23 @@ ESTIMATE = _obj(
     },
 )
 
+_NUM_OR_NULL = {"type": ["number", "null"]}
+DIAGNOSTICS = _obj(
+    "bingham_fuser.Diagnostics",
+    "What each measurement update did in one tick (fuser/model/diagnostics.py)",
+    {
+        "t_ns": {"type": "integer", "description": "tick time, ns"},
+        "updates": {"type": "array", "items": _obj("update", "one update's outcome", {
+            "update": {"type": "string", "description": "gravity, heading or attitude"},
+            "outcome": {"enum": ["fused", "gated", "reanchored"]},
+            "reason": {"type": "string", "description": "why gated: norm, dip, innovation, before_tilt, ...; empty otherwise"},
+            "innovation_deg": {**_NUM_OR_NULL, "description": "angle between measurement and prediction, degrees"},
+            "sigma_deg": {**_NUM_OR_NULL, "description": "measurement sigma used, degrees"},
+            "test_ratio": {**_NUM_OR_NULL, "description": "(innovation / gate)^2: above 1 outside the gate"},
+        })},
+    },
+)
+
 # topic -> schema; channel ids follow this order (registration order).
 CHANNELS: dict[str, dict[str, Any]] = {
     "/input/imu": _input_schema(
@@ -146,6 +163,7 @@ CHANNELS: dict[str, dict[str, Any]] = {
     "/pose": POSE_IN_FRAME,
     "/truth/pose": POSE_IN_FRAME,
     "/status": {"title": "bingham_fuser.Status", "description": "health and counters", "type": "object"},
+    "/diagnostics": DIAGNOSTICS,
 }
 
 
@@ -226,9 +244,12 @@ class McapRecorder:
         self.write_message(sample_channel(sample), receive_ns, sample.t_ns, dumps(encode_sample(sample, receive_ns)))
 
     def write_estimate(self, est: Estimate) -> None:
-        """An estimate on ``/estimate`` (full) and ``/pose`` (Foxglove), at its tick time."""
+        """An estimate on ``/estimate`` (full) and ``/pose`` (Foxglove), and its tick's update diagnostics on
+        ``/diagnostics`` (every tick that ran an update), at its tick time."""
         self.write_message("/estimate", est.t_ns, est.t_ns, est.to_json())
         self.write_message("/pose", est.t_ns, est.t_ns, dumps(pose_in_frame(est.t_ns, est.q_wxyz)))
+        if est.diagnostics:
+            self.write_message("/diagnostics", est.t_ns, est.t_ns, est.diagnostics_json())
 
     def write_truth(self, t_ns: int, q_wxyz: Quat) -> None:
         """The true attitude (simulator, imported logs) on ``/truth/pose``."""

@@ -1,0 +1,99 @@
+"""The fusion model's persistent state: one immutable value, read, set and reset as a whole.
+
+After VQF's parameter / state / coefficient split (``VQFParams``,
+``VQFState``, ``VQFCoefficients`` in dlaidig/vqf): the parameters are the
+frozen :class:`fuser.config.FuserConfig`, the coefficients are derived from
+them once (:class:`fuser.model.heading.FieldReference`, the process-noise
+table), and everything a tick carries to the next is here. Each update
+module owns one part and returns a new one; nothing is changed in place, so
+a state read with :attr:`FusionModel.state <fuser.model.FusionModel.state>`
+stays valid after further ticks and can be set into another model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from core import quaternion as quat
+from core.bingham import Bingham
+from drivers.samples import SourceId, Vec3
+from fuser.config import FuserConfig
+from fuser.model_error import ModelErrorState
+
+__all__ = ["BiasState", "FilterState", "GravityState", "GyroState", "HeadingState", "RestState", "initial_state"]
+
+
+@dataclass(frozen=True, slots=True)
+class GyroState:
+    """Each IMU's last gyro sample: its time (on the IMU's own clock, ns) and raw rate (rad/s, bias not removed)."""
+
+    last: Mapping[SourceId, tuple[int, Vec3]] = field(default_factory=dict)
+    last_rate_rad_s: float = 0.0
+    """Norm of the last bias-corrected tick rate: the bias feedback learns only below its threshold."""
+    publish_offset_ns: Mapping[SourceId, int] = field(default_factory=dict)
+    """Per IMU, the least (tick time - last sample time) seen: the published estimate is carried from the
+    last sample by the part of the gap beyond it (``FusionModel._carried_to_tick``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class BiasState:
+    """The gyro bias estimate (rad/s, body FRD) and the variance of each axis ((rad/s)^2)."""
+
+    estimate_rad_s: np.ndarray
+    variance_rad2_s2: float
+
+
+@dataclass(frozen=True, slots=True)
+class RestState:
+    """Rest detector (VQF, rest detection): low-passed gyro and accelerometer, seconds still, and the verdict."""
+
+    gyro_lp_rad_s: np.ndarray | None = None
+    accel_lp_m_s2: np.ndarray | None = None
+    still_s: float = 0.0
+    at_rest: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class GravityState:
+    """The gravity update's memory: the low-passed specific force in the gyro-only strapdown frame."""
+
+    q_strapdown: np.ndarray = field(default_factory=lambda: quat.IDENTITY.copy())
+    """Gyro-only attitude (never corrected): the almost-inertial frame of the low-pass (VQF, inclination correction)."""
+    accel_lp_m_s2: np.ndarray | None = None
+    """Low-passed specific force in that frame."""
+    down_body: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    """Last measured direction of down in the body frame: the magnetometer's dip reference."""
+    converged: bool = False
+    """Once the state has converged the raw accelerometer is never trusted again."""
+    tilt_known: bool = False
+    """A gravity reading has been fused: the heading may be measured."""
+    gated_s: float = 0.0
+    """Seconds of continuous gating by innovation (re-anchored after ``updates.reanchor_after_s``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingState:
+    gated_s: float = 0.0
+    """Seconds of continuous gating by innovation."""
+
+
+@dataclass(frozen=True, slots=True)
+class FilterState:
+    """Everything one tick hands to the next."""
+
+    attitude: Bingham
+    """The filter's Bingham over the attitude quaternion (body FRD -> world NED)."""
+    bias: BiasState
+    gyro: GyroState = GyroState()
+    rest: RestState = RestState()
+    gravity: GravityState = GravityState()
+    heading: HeadingState = HeadingState()
+    model_error: ModelErrorState = ModelErrorState()
+
+
+def initial_state(config: FuserConfig) -> FilterState:
+    """The start: a uniform attitude (no prior knowledge needed), zero bias with its initial uncertainty."""
+    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2))
