@@ -160,8 +160,12 @@ class GyroSettings(Settings):
     """Relative scale and misalignment error: process noise proportional to the rotation rate."""
     gap_rate_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 1.0
     """Assumed rotation rate while no gyro data arrives: how fast the uncertainty grows in a gap."""
-    max_interval_s: Seconds = 0.1
-    """Longer intervals between two samples of one IMU are not integrated (a gap)."""
+    max_interval_s: Seconds = 0.6
+    """Longest interval between two gyro samples that is integrated, and the longest the last rate is held
+    after a sample; longer ones are gaps. 0.6 s integrates a telemetry link's 2 Hz."""
+    rate_walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 0.3
+    """How fast the true rate may depart from the last sample (a random walk of the rate): the error of the
+    rate between samples, ``s^2 h^3 / 12`` interpolated over an interval ``h``, ``s^2 h^3 / 3`` held for ``h``."""
     min_process_variance_rad2: Annotated[float, Range(gt=0, unit="rad^2")] = 1e-18
     """Floor of the per-tick process variance: caps the noise concentration (2e18) of a zero-length tick."""
 

@@ -86,7 +86,7 @@ def _warm_up(pipeline: Pipeline) -> None:
         t = (k + 1) * 10_000_000
         imu = [] if k == 3 else [ImuSample(t - 5_000_000, (0.01, 0.0, 0.0), (0.0, 0.0, -9.8), (0.21, 0.0, 0.43), src),
                                  ImuSample(t, (0.01, 0.0, 0.0), (0.0, 0.0, -9.8), (0.21, 0.0, 0.43), src)]
-        model.step(TickInput(t, 10_000_000, [*imu, AttitudeSample(t, (1.0, 0.0, 0.0, 0.0), src)], src))
+        model.step(TickInput(t, 10_000_000, [*imu, AttitudeSample(t, (1.0, 0.0, 0.0, 0.0), src)]))
 
 
 class LiveRunner:

@@ -12,10 +12,10 @@ grid of ``1/rate``) fuses the samples placed in ``(T - period, T]`` and runs
 once the clock reaches ``T + latency``; a sample placed at or before a tick
 that already ran is late, counted and dropped.
 
-The loop is the one owner of this timeline: it also picks the reference IMU
-(the first IMU stream to arrive), whose clock the estimates' ``sensor_t_ns``
-is on, and hands the model each tick's samples with that choice
-(:class:`fuser.model.TickInput`). The model returns a plain
+The loop is the one owner of this timeline: it hands the model each tick's
+samples with their placed times (:class:`fuser.model.TickInput`), and picks
+the reference IMU (the first IMU stream to arrive), whose clock the
+estimates' ``sensor_t_ns`` is on. The model returns a plain
 :class:`fuser.model.TickResult`; the wire :class:`~fuser.codec.Estimate` is
 built here from it (:func:`estimate_of`).
 """
@@ -113,7 +113,7 @@ class FusionLoop:
         dt = self.period_ns if self._last_tick is None else tick_ns - self._last_tick
         self._last_tick = tick_ns
         self.counters["ticks"] += 1
-        result = self.model.step(TickInput(tick_ns, dt, [p[2] for p in due], self.reference_imu))
+        result = self.model.step(TickInput(tick_ns, dt, [p[2] for p in due], [p[0] for p in due]))
         offset = None if self.reference_imu is None else self._offsets[(self.reference_imu, ImuSample)]
         estimate = estimate_of(tick_ns, result, {**result.counters, **self.counters}, None if offset is None else tick_ns - offset)
         for d in estimate.diagnostics:

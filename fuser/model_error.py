@@ -114,9 +114,11 @@ def model_error_variances(
     return math.radians(params.tilt_deg) ** 2 + rate, floor + rate
 
 
-def published(params: ModelErrorSettings, state: Bingham, rate_sq: float, heading_floor: bool) -> Bingham:
-    """The published state: ``state`` with the model error at ``rate_sq`` (:func:`with_model_error`)."""
+def published(params: ModelErrorSettings, state: Bingham, rate_sq: float, heading_floor: bool, isotropic_rad2: float = 0.0) -> Bingham:
+    """The published state: ``state`` with the model error at ``rate_sq`` (:func:`with_model_error`) and a further
+    independent error of per-axis variance ``isotropic_rad2`` on every axis (the held gyro rate's, for one)."""
     tilt, heading = model_error_variances(params, rate_sq, heading_floor)
+    tilt, heading = tilt + isotropic_rad2, heading + isotropic_rad2
     if tilt == 0.0 and heading == 0.0:
         return state
     return with_model_error(state, tilt, heading)

@@ -15,9 +15,9 @@ GRAVITY_M_S2 = 9.80665
 TICK = 10_000_000  # 100 Hz
 
 
-def tick(samples: list[Sample], t_ns: int, dt_ns: int = TICK, reference=SRC) -> TickInput:
-    """One tick ending at ``t_ns`` as the loop would hand it over (reference IMU ``SRC``)."""
-    return TickInput(t_ns, dt_ns, samples, reference)
+def tick(samples: list[Sample], t_ns: int, dt_ns: int = TICK) -> TickInput:
+    """One tick ending at ``t_ns`` whose samples' own times are on the loop's clock."""
+    return TickInput(t_ns, dt_ns, samples)
 
 
 def imu_at(q, t_ns, gyro=(0.0, 0.0, 0.0), accel_extra=(0.0, 0.0, 0.0), mag=True, mag_extra=(0.0, 0.0, 0.0), source=SRC):

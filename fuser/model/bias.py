@@ -27,7 +27,7 @@ def propagate(params: BiasSettings, state: BiasState, dt_s: float) -> BiasState:
 
 def learn_from_correction(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray,
                           dt_s: float) -> BiasState:
-    """Integral feedback of the tick's correction into the bias.
+    """Integral feedback of the tick's correction into the bias (``dt_s`` since the last such correction).
 
     A bias error ``e`` makes the prediction drift by ``e dt`` per tick, which
     the updates then correct; feeding ``-correction / tau`` back drives the

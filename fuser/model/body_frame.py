@@ -9,11 +9,11 @@ averaged: small-angle rotation ``v - (w lag) x v``.
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Sequence
 
 import numpy as np
 
-from drivers.samples import ImuSample, SourceId, Vec3
+from drivers.samples import Vec3
 
 __all__ = ["lags_s", "mean_in_state_body"]
 
@@ -25,9 +25,9 @@ def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.array([ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx])
 
 
-def lags_s(samples: Sequence[ImuSample], state_time_ns: Mapping[SourceId, tuple[int, Vec3]]) -> np.ndarray:
-    """Seconds each sample lies behind the state's time on its IMU's clock (its last gyro sample)."""
-    return np.array([(state_time_ns[s.source][0] - s.t_ns) * 1e-9 if s.source in state_time_ns else 0.0 for s in samples])
+def lags_s(placed_ns: Sequence[int], state_ns: int) -> np.ndarray:
+    """Seconds each sample (at its time on the loop's timeline) lies behind the state's time."""
+    return (state_ns - np.asarray(placed_ns, dtype=np.int64)) * 1e-9
 
 
 def mean_in_state_body(vectors: Sequence[Vec3], lags: np.ndarray, rate_rad_s: np.ndarray | None) -> np.ndarray:

@@ -15,19 +15,20 @@ or a local computed above it.
    ever measured is applied at once, for the heading that follows it.
 3. **Bias** (:mod:`~fuser.model.rest`, :mod:`~fuser.model.bias`): measured at
    rest, learnt from the tick's correction in slow motion.
-4. **Publish**: the posterior carried to the tick time and widened by the
-   model error (:mod:`fuser.model_error`).
+4. **Publish**: the posterior widened by the model error
+   (:mod:`fuser.model_error`) and by the error of a gyro rate held since the
+   last sample.
+
+The state is at the tick's end: the gyro carries it over the whole tick, and
+every reading is turned into the body frame of that instant.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from dataclasses import replace
-from typing import Sequence
-
 import numpy as np
 
-from core import quaternion as quat
 from core.bingham import Bingham
 from core.filters import rms_angle_deg
 from core.normalization import Method
@@ -40,7 +41,7 @@ from fuser.model.body_frame import lags_s, mean_in_state_body
 from fuser.model.diagnostics import UpdateDiagnostic, counter_name
 from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
 from fuser.model.heading import FieldReference, heading_sigma_rad, update_heading
-from fuser.model.propagation import ProcessNoise, integrate_gyro, predict
+from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
 from fuser.model.state import FilterState, GyroState, initial_state
 from fuser.model.tick import TickContext, TickInput, TickResult
@@ -57,8 +58,8 @@ class FusionModel:
     """Bingham attitude fusion of any number of IMUs, magnetometers and attitude sources.
 
     ``config`` holds the parameters; :attr:`state` the persistent state (read,
-    set, :meth:`reset`); the field reference and the process-noise table are
-    coefficients derived from ``config`` once. :meth:`step` runs one tick.
+    set, :meth:`reset`); the field reference is a coefficient derived from
+    ``config`` once. :meth:`step` runs one tick.
     """
 
     def __init__(self, config: FuserConfig, method: Method = "saddlepoint") -> None:
@@ -67,7 +68,6 @@ class FusionModel:
         """Normalization constant behind every moment match (:mod:`core.normalization`)."""
         self.counters: Counter[str] = Counter()
         """Events so far: readings gated by reason, gyro gaps, rest ticks, ..."""
-        self._noise = ProcessNoise(config.gyro.min_process_variance_rad2)
         self._field = FieldReference.of(config.mag.field_ned_gauss)
         self._state = initial_state(config)
 
@@ -90,47 +90,56 @@ class FusionModel:
         """Fuse the samples of one tick (:class:`~fuser.model.tick.TickInput`)."""
         cfg, s = self.config, self._state
         dt = tick.dt_ns * 1e-9
-        imu = [x for x in tick.samples if isinstance(x, ImuSample)]
+        placed = [x.t_ns for x in tick.samples] if tick.placed_ns is None else tick.placed_ns
+        imu = [(x, t) for x, t in zip(tick.samples, placed) if isinstance(x, ImuSample)]
+        imu_samples, imu_placed = [x for x, _ in imu], [t for _, t in imu]
         events: list[str] = []
 
-        # 1. predict
+        # 1. predict: the gyro over the whole tick, then the closed-form prediction
         bias = bias_feedback.propagate(cfg.bias, s.bias, dt)
-        last_gyro, motion = integrate_gyro(cfg.gyro, s.gyro, imu)
+        track, motion = integrate_gyro(cfg.gyro, s.gyro.track, imu_samples, imu_placed, tick.t_ns - tick.dt_ns, tick.t_ns)
         events += ["gyro_gap"] * motion.gaps
-        prediction = predict(cfg.gyro, cfg.bias, s.attitude, bias, motion.raw_rate_rad_s, dt, self._noise, self.method)
-        if prediction.rate_rad_s is None:
+        if not imu:
             events.append("no_gyro")
-            rate, error_state = s.gyro.last_rate_rad_s, s.model_error
+        if motion.held:
+            events.append("gyro_held")
+        prediction = predict(cfg.gyro, cfg.bias, s.attitude, bias, motion, dt, self.method)
+        if prediction.rate_rad_s is None:
+            rate, error_state = s.gyro.rate_rad_s, s.model_error
         else:
             rate = prediction.rate_rad_s
             error_state = model_error.observe_rate(s.model_error, rate, dt, cfg.accel.lowpass_s)
-        gravity = turn_frame(s.gravity, prediction.rotation)
+        gravity = turn_frame(s.gravity, prediction.rotation, motion.gap_s)
         context = TickContext(dt, prediction.variance_rad2, rms_angle_deg(prediction.attitude, self.method))
         predicted_q = prediction.attitude.mode
         raw_rate = motion.raw_rate_rad_s
+        body_rate = None if raw_rate is None else raw_rate - bias.estimate_rad_s
 
         # 2. updates, gated against the prediction; their exponents add up to one product
         belief, exponent = prediction.attitude, np.zeros((4, 4))
         diagnostics: list[UpdateDiagnostic] = []
         rest, heading, accel_trusted = s.rest, s.heading, False
+        interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
         if imu:
-            accel = mean_in_state_body([x.accel_m_s2 for x in imu], lags_s(imu, last_gyro), None if raw_rate is None else raw_rate - bias.estimate_rad_s)
-            if cfg.rest.enabled and raw_rate is not None and dt > 0.0:
-                rest = detect_rest(cfg.rest, rest, raw_rate, accel, dt)
+            accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags_s(imu_placed, tick.t_ns), body_rate)
+            if cfg.rest.enabled and raw_rate is not None:
+                rest = detect_rest(cfg.rest, rest, raw_rate, accel, interval)
                 if rest.at_rest:
                     events.append("rest_ticks")
-                    bias = measure_bias(cfg.rest, rest, bias, dt)
+                    bias = measure_bias(cfg.rest, rest, bias, interval)
             reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel,
-                                     tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2), predicted_q)
+                                     tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2), predicted_q, interval)
             gravity, accel_trusted = reading.state, reading.trusted
             diagnostics.append(reading.diagnostic)
             if reading.exponent is not None:
                 exponent = exponent + reading.exponent
             if reading.apply_now:
                 belief, exponent = _multiplied(belief, exponent), np.zeros((4, 4))
-        mag = self._mag_in_state_body(tick.samples, imu, last_gyro, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
+        mag = self._mag_in_state_body(tick, imu, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
         if mag is not None:
-            sigma = heading_sigma_rad(cfg.mag, cfg.bias, gravity.converged, context, bias.variance_rad2_s2)
+            since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
+            heading = replace(heading, last_reading_ns=tick.t_ns)
+            sigma = heading_sigma_rad(cfg.mag, cfg.bias, gravity.converged, context, bias.variance_rad2_s2, since)
             h = update_heading(cfg.mag, cfg.updates, self._field, heading, gravity, context, mag, belief.mode, sigma)
             heading = h.state
             diagnostics.append(h.diagnostic)
@@ -147,49 +156,26 @@ class FusionModel:
 
         # 3. bias feedback from the tick's correction
         if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, rate, context.prior_doubt_deg):
-            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, dt)
+            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, interval)
 
-        # 4. publish: carried to the tick time, widened by the model error
-        carried, publish_offsets = self._carried_to_tick(tick, imu, last_gyro, s.gyro.publish_offset_ns, posterior, bias.estimate_rad_s, dt)
-        published = model_error.published(cfg.model_error, carried, error_state.rate_sq, cfg.mag.enabled)
+        # 4. publish: widened by the model error and by the error of a rate held since the last sample
+        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, motion.hold_variance_rad2)
 
-        self._state = replace(s, attitude=posterior, bias=bias, gyro=GyroState(last_gyro, rate, publish_offsets), rest=rest,
-                              gravity=gravity, heading=heading, model_error=error_state)
+        self._state = replace(s, attitude=posterior, bias=bias, rest=rest, gravity=gravity, heading=heading, model_error=error_state,
+                              gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns))
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
         return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))
 
-    def _mag_in_state_body(self, samples: Sequence, imu: list[ImuSample], last_gyro, body_rate: np.ndarray | None) -> np.ndarray | None:
+    def _mag_in_state_body(self, tick: TickInput, imu: list[tuple[ImuSample, int]], body_rate: np.ndarray | None) -> np.ndarray | None:
         """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body
         frame), or None without one or with the magnetometer off."""
         if not self.config.mag.enabled:
             return None
-        mags: list = [x.mag_gauss for x in samples if isinstance(x, MagSample)]
-        with_mag = [x for x in imu if x.mag_gauss is not None]
+        mags: list = [x.mag_gauss for x in tick.samples if isinstance(x, MagSample)]
+        with_mag = [(x, t) for x, t in imu if x.mag_gauss is not None]
         if with_mag:
-            mags.append(mean_in_state_body([x.mag_gauss for x in with_mag], lags_s(with_mag, last_gyro), body_rate))
+            mags.append(mean_in_state_body([x.mag_gauss for x, _ in with_mag], lags_s([t for _, t in with_mag], tick.t_ns), body_rate))
         if not mags:
             return None
         return np.asarray(mags[0], dtype=float) if len(mags) == 1 else np.mean(mags, axis=0)
-
-    @staticmethod
-    def _carried_to_tick(tick: TickInput, imu: list[ImuSample], last_gyro, offsets, posterior: Bingham, bias_rad_s: np.ndarray, dt: float):
-        """The posterior carried from the reference IMU's last gyro sample to the tick time at that sample's rate.
-
-        The loop fuses samples placed up to the tick time at ``sample time +
-        offset`` and stamps the estimate with the tick time; the least ``tick
-        - last sample time`` seen is taken as that offset, so the rest of the
-        gap is how far the tick lies past the state's last gyro sample. Only
-        the published estimate moves; the filter integrates on from the sample.
-        """
-        reference = tick.reference_imu
-        if reference is None or not any(x.source == reference for x in imu):
-            return posterior, offsets
-        last_ns, raw = last_gyro[reference]
-        gap = tick.t_ns - last_ns
-        offset = min(offsets.get(reference, gap), gap)
-        offsets = {**offsets, reference: offset}
-        lead = min((gap - offset) * 1e-9, dt)
-        if lead <= 0.0:
-            return posterior, offsets
-        return posterior.rotate_right(quat.from_rotvec((np.asarray(raw) - bias_rad_s) * lead)), offsets

@@ -10,12 +10,15 @@ likelihood in the attitude (Davenport's K,
 :func:`core.observations.vector_exponent`; unscented paper, sec. IV-B).
 
 Consecutive filtered readings are strongly correlated, so they must not be
-counted as independent: the per-tick sigma is set so that the correction
-time constant is the low-pass's ``tau`` (``sigma^2 = q (tau/dt)^2`` for a
-per-tick process variance ``q``), which keeps the reported tilt uncertainty
-honest. Until the state first converges the raw reading is used with
+counted as independent: the sigma is set so that the correction time
+constant is the low-pass's ``tau`` (``sigma^2 = Q (tau/T)^2`` for readings
+every ``T`` seconds and the process variance ``Q`` accumulated over ``T``),
+which keeps the reported tilt uncertainty honest whatever the IMU rate.
+Until the state first converges the raw reading is used with
 ``accel.sigma_rad``, for a fast start; never after, when a raw reading
-mid-manoeuvre is the misleading one.
+mid-manoeuvre is the misleading one. The low-pass starts at convergence from
+the filter's own estimate of down, an average of every reading fused so far,
+not from the one raw reading of that tick (which carries the vibration).
 
 A velocity-aided variant (the world acceleration from GNSS velocity taken
 out of the specific force before the low-pass) is one more function with
@@ -57,11 +60,15 @@ class GravityReading:
     diagnostic: UpdateDiagnostic
 
 
-def turn_frame(state: GravityState, rotation: np.ndarray | None) -> GravityState:
-    """The strapdown frame after the tick's gyro rotation (none without gyro)."""
-    if rotation is None:
-        return state
-    return replace(state, q_strapdown=quat.normalize(quat.multiply(state.q_strapdown, rotation)))
+def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -> GravityState:
+    """The strapdown frame after the tick's gyro rotation. A gap in the gyro (``gap_s`` of the tick without a
+    rate) breaks the frame: the body turned by an unknown rotation, so the low-pass's memory is dropped and the
+    update starts again as before convergence (raw readings until the state is sure again)."""
+    if rotation is not None:
+        state = replace(state, q_strapdown=quat.normalize(quat.multiply(state.q_strapdown, rotation)))
+    if gap_s > 0.0 and state.converged:
+        state = replace(state, accel_lp_m_s2=None, converged=False)
+    return state
 
 
 def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_variance_rad2_s2: float) -> float:
@@ -77,25 +84,32 @@ def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_varianc
 
 
 def update_gravity(params: AccelSettings, updates: UpdateSettings, state: GravityState, tick: TickContext, accel_body_m_s2: np.ndarray,
-                   tau_s: float, predicted_q: np.ndarray) -> GravityReading:
-    """The gravity update of one tick from the tick's mean specific force in the state's body frame."""
+                   tau_s: float, predicted_q: np.ndarray, interval_s: float) -> GravityReading:
+    """The gravity update of one tick from the tick's mean specific force in the state's body frame, the
+    readings ``interval_s`` after the previous ones."""
     to_inertial = quat.to_matrix(state.q_strapdown)
     f_inertial = to_inertial @ accel_body_m_s2
     converged = state.converged or tick.prior_doubt_deg < updates.converged_deg
-    if state.accel_lp_m_s2 is None or not converged:
-        lowpassed = f_inertial
+    predicted_down = quat.to_matrix(predicted_q)[2]  # R^T e_z: world down in the body
+    if not converged:
+        lowpassed = None
     else:
-        lowpassed = state.accel_lp_m_s2 + min(1.0, tick.dt_s / tau_s) * (f_inertial - state.accel_lp_m_s2)
+        # the low-pass starts from the filter's own estimate (at rest: -g down), not from one raw reading
+        start = to_inertial @ (-params.gravity_m_s2 * predicted_down) if state.accel_lp_m_s2 is None else state.accel_lp_m_s2
+        lowpassed = start + min(1.0, interval_s / tau_s) * (f_inertial - start)
     state = replace(state, accel_lp_m_s2=lowpassed, converged=converged)
-    norm = math.sqrt(float(lowpassed @ lowpassed))
+    measured = f_inertial if lowpassed is None else lowpassed
+    norm = math.sqrt(float(measured @ measured))
     norm_error = abs(norm - params.gravity_m_s2) / params.gravity_m_s2
     if norm_error > params.norm_gate_fraction:
         return GravityReading(state, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"))
-    filtered_body = lowpassed @ to_inertial
+    filtered_body = measured @ to_inertial
     down_body = -filtered_body / norm
     state = replace(state, down_body=down_body)
-    sigma = math.sqrt(tick.process_variance_rad2) * tau_s / max(tick.dt_s, 1e-6) if converged else params.sigma_rad
-    predicted_down = quat.to_matrix(predicted_q)[2]  # R^T e_z: world down in the body
+    if converged:  # Q = q T / dt over the interval T
+        sigma = math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau_s / max(interval_s, 1e-6)
+    else:
+        sigma = params.sigma_rad
     innovation = math.acos(max(-1.0, min(1.0, float(down_body @ predicted_down))))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, tick.dt_s)
     if not state.tilt_known:

@@ -13,7 +13,7 @@ magnet near the sensor cannot tilt the estimate. Readings whose norm or dip
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -50,29 +50,31 @@ class HeadingReading:
     diagnostic: UpdateDiagnostic
 
 
-def heading_sigma_rad(params: MagSettings, bias: BiasSettings, converged: bool, tick: TickContext, bias_variance_rad2_s2: float) -> float:
-    """Per-tick heading sigma.
+def heading_sigma_rad(params: MagSettings, bias: BiasSettings, converged: bool, tick: TickContext, bias_variance_rad2_s2: float,
+                      interval_s: float) -> float:
+    """Sigma of a heading reading taken ``interval_s`` after the previous one.
 
     ``sigma_rad`` until converged (a fast start); then the magnetometer's
     correlated error counted once per correlation time,
-    ``error sqrt(correlation_s / dt)`` (a fixed per-tick sigma counts errors
-    that persist for seconds as independent and follows them), but never
-    slower than a correction time constant ``tau = heading_bias_error / bias
-    sigma`` (``sigma^2 = q (tau/dt)^2`` for the tick's process variance ``q``,
-    as for the tilt), so that a poorly known bias is still held.
+    ``error sqrt(correlation_s / T)`` for readings every ``T`` (a fixed sigma
+    counts errors that persist for seconds as independent and follows them),
+    but never slower than a correction time constant ``tau =
+    heading_bias_error / bias sigma`` (``sigma^2 = Q (tau/T)^2`` for the
+    process variance ``Q = q T / dt`` over ``T``, as for the tilt), so that a
+    poorly known bias is still held.
     """
-    dt = tick.dt_s
-    if not converged or dt <= 0.0:
+    if not converged or interval_s <= 0.0:
         return params.sigma_rad
-    correlated = math.radians(params.error_deg) * math.sqrt(max(params.correlation_s / dt, 1.0))
+    correlated = math.radians(params.error_deg) * math.sqrt(max(params.correlation_s / interval_s, 1.0))
     tau = math.radians(params.heading_bias_error_deg) / math.sqrt(max(bias_variance_rad2_s2, bias.min_variance_rad2_s2))
-    return min(correlated, math.sqrt(tick.process_variance_rad2) * tau / dt)
+    return min(correlated, math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau / interval_s)
 
 
 def update_heading(params: MagSettings, updates: UpdateSettings, reference: FieldReference, state: HeadingState, gravity: GravityState,
                    tick: TickContext, mag_body_gauss: np.ndarray, current_q: np.ndarray, sigma_rad: float) -> HeadingReading:
     """The heading update of one tick from the tick's mean field in the state's body frame, against the
-    current estimate ``current_q`` and the measured down in ``gravity``."""
+    current estimate ``current_q`` and the measured down in ``gravity``. ``state`` is the heading's with
+    this reading's time already noted."""
     if not gravity.tilt_known:
         return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "before_tilt"))
     norm = math.sqrt(float(mag_body_gauss @ mag_body_gauss))
@@ -88,6 +90,7 @@ def update_heading(params: MagSettings, updates: UpdateSettings, reference: Fiel
     verdict = innovation_gate(updates, state.gated_s, abs(error), max(sigma_rad, params.sigma_rad), tick.prior_doubt_deg, tick.dt_s)
     diagnostic = UpdateDiagnostic.of("heading", verdict.outcome, "innovation" if verdict.outcome == "gated" else "",
                                      abs(error), sigma_rad, verdict.test_ratio)
+    state = replace(state, gated_s=verdict.gated_s)
     if verdict.outcome == "gated":
-        return HeadingReading(HeadingState(verdict.gated_s), None, diagnostic)
-    return HeadingReading(HeadingState(verdict.gated_s), heading_exponent(current_q, error, sigma_rad), diagnostic)
+        return HeadingReading(state, None, diagnostic)
+    return HeadingReading(state, heading_exponent(current_q, error, sigma_rad), diagnostic)

@@ -26,7 +26,8 @@ def _norm(v: np.ndarray) -> float:
 
 
 def detect_rest(params: RestSettings, state: RestState, raw_rate_rad_s: np.ndarray, accel_m_s2: np.ndarray, dt_s: float) -> RestState:
-    """The detector after one tick's mean raw gyro rate and specific force (body frame)."""
+    """The detector after one tick's mean raw gyro rate and specific force (body frame), ``dt_s`` after the
+    previous readings."""
     gyro_lp = raw_rate_rad_s.copy() if state.gyro_lp_rad_s is None else state.gyro_lp_rad_s
     accel_lp = accel_m_s2.copy() if state.accel_lp_m_s2 is None else state.accel_lp_m_s2
     a = min(1.0, dt_s / params.filter_s)
@@ -43,7 +44,7 @@ def detect_rest(params: RestSettings, state: RestState, raw_rate_rad_s: np.ndarr
 
 def measure_bias(params: RestSettings, rest: RestState, bias: BiasState, dt_s: float) -> BiasState:
     """Kalman update of the bias with the low-passed gyro, whose noise is ``bias_sigma_rad_s`` counted once
-    per ``filter_s``; call only at rest."""
+    per ``filter_s`` (readings every ``dt_s``); call only at rest."""
     assert rest.gyro_lp_rad_s is not None
     noise = params.bias_sigma_rad_s**2 * max(params.filter_s / dt_s, 1.0)
     gain = bias.variance_rad2_s2 / (bias.variance_rad2_s2 + noise)

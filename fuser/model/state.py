@@ -13,29 +13,39 @@ stays valid after further ticks and can be set into another model.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Mapping
-
 import numpy as np
 
 from core import quaternion as quat
 from core.bingham import Bingham
-from drivers.samples import SourceId, Vec3
+from drivers.samples import Vec3
 from fuser.config import FuserConfig
 from fuser.model_error import ModelErrorState
 
-__all__ = ["BiasState", "FilterState", "GravityState", "GyroState", "HeadingState", "RestState", "initial_state"]
+__all__ = ["BiasState", "FilterState", "GravityState", "GyroState", "GyroTrack", "HeadingState", "RestState", "initial_state"]
+
+
+@dataclass(frozen=True, slots=True)
+class GyroTrack:
+    """The vehicle's gyro stream (all its IMUs) on the loop's timeline (:mod:`fuser.model.propagation`)."""
+
+    last_ns: int
+    """Time of the last gyro sample (ns, loop timeline)."""
+    last_rate_rad_s: Vec3
+    """Its raw rate (rad/s, bias not removed): the rate held until the next sample."""
+    covered_ns: int
+    """The attitude has been carried up to here (the last tick's end)."""
+    held_rad: Vec3
+    """Raw rotation the hold applied since ``last_ns``: taken back when the next sample closes the interval."""
 
 
 @dataclass(frozen=True, slots=True)
 class GyroState:
-    """Each IMU's last gyro sample: its time (on the IMU's own clock, ns) and raw rate (rad/s, bias not removed)."""
-
-    last: Mapping[SourceId, tuple[int, Vec3]] = field(default_factory=dict)
-    last_rate_rad_s: float = 0.0
-    """Norm of the last bias-corrected tick rate: the bias feedback learns only below its threshold."""
-    publish_offset_ns: Mapping[SourceId, int] = field(default_factory=dict)
-    """Per IMU, the least (tick time - last sample time) seen: the published estimate is carried from the
-    last sample by the part of the gap beyond it (``FusionModel._carried_to_tick``)."""
+    track: GyroTrack | None = None
+    """None until the first gyro sample."""
+    rate_rad_s: float = 0.0
+    """Norm of the last known bias-corrected rate: the bias feedback learns only below its threshold."""
+    last_imu_tick_ns: int | None = None
+    """The last tick that held IMU samples: the gravity and rest updates count their readings per interval."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -67,7 +77,7 @@ class GravityState:
     down_body: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
     """Last measured direction of down in the body frame: the magnetometer's dip reference."""
     converged: bool = False
-    """Once the state has converged the raw accelerometer is never trusted again."""
+    """Once the state has converged the raw accelerometer is not trusted again (until a gyro gap breaks the frame)."""
     tilt_known: bool = False
     """A gravity reading has been fused: the heading may be measured."""
     gated_s: float = 0.0
@@ -78,6 +88,8 @@ class GravityState:
 class HeadingState:
     gated_s: float = 0.0
     """Seconds of continuous gating by innovation."""
+    last_reading_ns: int | None = None
+    """Tick of the last magnetometer reading: the heading's correlated error is counted per interval."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -15,7 +15,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from core.bingham import Bingham
-from drivers.samples import Sample, SourceId
+from drivers.samples import Sample
 from fuser.model.diagnostics import UpdateDiagnostic
 
 __all__ = ["TickContext", "TickInput", "TickResult"]
@@ -30,9 +30,10 @@ class TickInput:
     dt_ns: int
     """Length of the tick: time since the previous tick (ns)."""
     samples: Sequence[Sample]
-    """Every sample placed in the tick, in time order."""
-    reference_imu: SourceId | None = None
-    """The IMU whose clock the estimate's sensor time is on (the loop's choice), None before any."""
+    """Every sample placed in the tick."""
+    placed_ns: Sequence[int] | None = None
+    """Each sample's time on the loop's timeline (its own time plus its stream's clock offset), in
+    ``(t_ns - dt_ns, t_ns]``; None: the samples' own times are on the loop's clock."""
 
 
 @dataclass(frozen=True, slots=True)
