@@ -135,6 +135,8 @@ def _config(args: argparse.Namespace) -> FuserConfig:
     if getattr(args, "attitude_sigma_deg", None) is not None:
         overrides["attitude.mode"] = "always"
         overrides["attitude.sigma_deg"] = args.attitude_sigma_deg
+    if getattr(args, "no_attitude", False):
+        overrides["attitude.mode"] = "off"
     return load_config(args.config, overrides)
 
 

@@ -163,6 +163,9 @@ class GyroSettings(Settings):
     max_interval_s: Seconds = 0.6
     """Longest interval between two gyro samples that is integrated, and the longest the last rate is held
     after a sample; longer ones are gaps. 0.6 s integrates a telemetry link's 2 Hz."""
+    rate_window_s: Seconds = 1.0
+    """Time constant over which the IMU rate is measured (the sample interval, low-passed): ``attitude.mode =
+    "auto"`` fuses the autopilot's attitude while it is slow."""
     rate_walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 0.3
     """How fast the true rate may depart from the last sample (a random walk of the rate): the error of the
     rate between samples, ``s^2 h^3 / 12`` interpolated over an interval ``h``, ``s^2 h^3 / 3`` held for ``h``."""
@@ -284,10 +287,15 @@ class AttitudeSettings(Settings):
 
     section: ClassVar[str] = "fuser.attitude"
 
-    mode: Literal["off", "always"] = "off"
-    """``"always"``: fuse every attitude sample as an identity measurement with ``sigma_deg``; ``"off"``: never."""
+    mode: Literal["auto", "always", "off"] = "auto"
+    """``"auto"``: fuse the attitude while the IMU is too slow to carry the estimate (below
+    ``auto_below_imu_hz``, or no IMU at all: a telemetry radio), not while it is fast (a wired link, where
+    the autopilot's estimate would only pull ours towards its own); ``"always"``: fuse every attitude sample;
+    ``"off"``: never."""
     sigma_deg: Annotated[float, Range(gt=0, unit="deg")] = 2.0
-    """One-sigma noise of the autopilot's attitude, per axis."""
+    """One-sigma noise of the autopilot's attitude, per axis: an EKF's attitude error in flight is 1-2 deg."""
+    auto_below_imu_hz: Annotated[float, Range(gt=0, unit="Hz")] = 20.0
+    """``"auto"`` fuses the attitude while the measured IMU rate (all the vehicle's IMUs together) is below this."""
 
 
 @dataclass(frozen=True)

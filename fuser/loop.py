@@ -15,7 +15,13 @@ that already ran is late, counted and dropped.
 The loop is the one owner of this timeline: it hands the model each tick's
 samples with their placed times (:class:`fuser.model.TickInput`), and picks
 the reference IMU (the first IMU stream to arrive), whose clock the
-estimates' ``sensor_t_ns`` is on. The model returns a plain
+estimates' ``sensor_t_ns`` is on.
+
+One vehicle. The first IMU's vehicle (:func:`vehicle_of`) is the one fused:
+its IMUs (ArduPilot's RAW_IMU, SCALED_IMU2, SCALED_IMU3 are instances 0, 1,
+2, each on its own clock) are fused together, and IMU or attitude samples of
+any other vehicle are counted (``other_vehicle``) and dropped, never
+averaged with it. The model returns a plain
 :class:`fuser.model.TickResult`; the wire :class:`~fuser.codec.Estimate` is
 built here from it (:func:`estimate_of`).
 """
@@ -28,12 +34,18 @@ from collections import Counter
 from typing import Any, Mapping
 
 from drivers.euler import euler_from_quaternion
-from drivers.samples import ImuSample, Sample, SourceId
+from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
 from fuser.config import FuserConfig
 from fuser.model import FusionModel, TickInput, TickResult
 
-__all__ = ["FusionLoop", "estimate_of"]
+__all__ = ["FusionLoop", "estimate_of", "vehicle_of"]
+
+
+def vehicle_of(source: SourceId) -> tuple:
+    """The vehicle a sample comes from: its MAVLink system id (any component, any instance); on a CAN bus
+    every node is part of the one vehicle."""
+    return (source.transport,) if source.transport == "dronecan" else (source.transport, source.system)
 
 
 _Pending = tuple[int, int, Sample]
@@ -57,7 +69,7 @@ class FusionLoop:
         self._next_tick: int | None = None
         self._last_tick: int | None = None
         self.reference_imu: SourceId | None = None
-        """The first IMU stream to arrive: the estimates' ``sensor_t_ns`` is on its clock."""
+        """The first IMU stream to arrive: the estimates' ``sensor_t_ns`` is on its clock, its vehicle is fused."""
         self._latest_diagnostics: dict[str, dict[str, Any]] = {}
 
     @property
@@ -67,9 +79,13 @@ class FusionLoop:
 
     def push(self, sample: Sample, receive_ns: int) -> None:
         """Hand a sample to the loop; it is fused by the tick that covers its time."""
+        if isinstance(sample, (ImuSample, AttitudeSample)):
+            if self.reference_imu is None and isinstance(sample, ImuSample):
+                self.reference_imu = sample.source
+            elif self.reference_imu is not None and vehicle_of(sample.source) != vehicle_of(self.reference_imu):
+                self.counters["other_vehicle"] += 1
+                return
         key = (sample.source, type(sample))
-        if self.reference_imu is None and isinstance(sample, ImuSample):
-            self.reference_imu = sample.source
         offset = min(receive_ns - sample.t_ns, self._offsets.get(key, receive_ns - sample.t_ns))
         self._offsets[key] = offset
         placed = sample.t_ns + offset

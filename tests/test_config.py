@@ -85,7 +85,7 @@ def test_the_logs_configs_are_in_the_new_layout():
     (MagSettings, {"field_ned_gauss": (0.2, 0.0)}, "fuser.mag.field_ned_gauss must be a list of 3 values, got [0.2, 0.0]"),
     (MagSettings, {"field_ned_gauss": (0.0, 0.0, 0.0)}, "fuser.mag.field_ned_gauss must not be zero"),
     (MagSettings, {"field_ned_gauss": (0.2, "x", 0.4)}, "fuser.mag.field_ned_gauss[1] must be a number, got 'x'"),
-    (AttitudeSettings, {"mode": "sometimes"}, "fuser.attitude.mode must be one of 'off', 'always', got 'sometimes'"),
+    (AttitudeSettings, {"mode": "sometimes"}, "fuser.attitude.mode must be one of 'auto', 'always', 'off', got 'sometimes'"),
     (AttitudeSettings, {"sigma_deg": 0}, "fuser.attitude.sigma_deg must be > 0 deg, got 0"),
     (FuserConfig, {"rate_hz": "fast"}, "fuser.rate_hz must be a number, got 'fast'"),
     (FuserConfig, {"latency_ms": -5}, "fuser.latency_ms must be >= 0 ms, got -5"),

@@ -93,7 +93,9 @@ def test_learns_a_constant_gyro_bias():
 
 def test_autopilot_attitude_is_an_identity_measurement_when_configured():
     q_ap = quat.from_rotvec([0.3, 0.2, -1.0])
-    for attitude, expect_used in ((AttitudeSettings(mode="off"), False), (AttitudeSettings(mode="always", sigma_deg=2.0), True)):
+    # no IMU at all: "auto" fuses the attitude too (the IMU is not there to carry the estimate)
+    for attitude, expect_used in ((AttitudeSettings(mode="off"), False), (AttitudeSettings(mode="always", sigma_deg=2.0), True),
+                                  (AttitudeSettings(mode="auto"), True)):
         model = FusionModel(FuserConfig(attitude=attitude))
         for k in range(50):
             est = model.step(tick([AttitudeSample((k + 1) * TICK, tuple(q_ap), SRC)], (k + 1) * TICK))

@@ -3,6 +3,18 @@
 ``z = x (x) v`` with isotropic noise ``v`` (per-axis sigma ``attitude.sigma_deg``):
 the likelihood is a Bingham in ``x`` and the update an exact product
 (unscented paper, sec. IV-B; :func:`core.filters.identity_likelihood`).
+
+**Policy** (``attitude.mode``, :func:`attitude_in_use`). Over a telemetry radio
+an autopilot sends its IMUs at 2-10 Hz each and its ATTITUDE at 3-4 Hz: the
+gyro alone cannot carry the attitude between so few samples, and the
+autopilot's estimate (from its IMU at hundreds of hertz) is the better
+measurement. Wired (a companion computer, 50-400 Hz) the IMU carries the
+attitude, and fusing the autopilot's estimate would only pull ours onto
+its. So by default (``"auto"``) the attitude is fused while the measured
+IMU rate is below ``attitude.auto_below_imu_hz`` or there is no IMU at all,
+with the stated noise ``sigma_deg``; the gyro carries the estimate between
+the attitude samples (:mod:`fuser.model.propagation`). ``"always"`` fuses it
+whatever the IMU rate (``--attitude-sigma``), ``"off"`` never (``--no-attitude``).
 """
 
 from __future__ import annotations
@@ -19,8 +31,16 @@ from drivers.samples import AttitudeSample
 from fuser.config import AttitudeSettings
 from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model.propagation import rotation_noise
+from fuser.model.state import GyroTrack
 
-__all__ = ["AttitudeReading", "update_attitude"]
+__all__ = ["AttitudeReading", "attitude_in_use", "update_attitude"]
+
+
+def attitude_in_use(params: AttitudeSettings, track: GyroTrack | None, now_ns: int) -> bool:
+    """Whether the policy (module docstring) fuses the autopilot's attitude at ``now_ns``."""
+    if params.mode != "auto":
+        return params.mode == "always"
+    return track is None or track.rate_hz(now_ns) < params.auto_below_imu_hz
 
 
 @dataclass(frozen=True, slots=True)

@@ -36,7 +36,7 @@ from drivers.samples import AttitudeSample, ImuSample, MagSample
 from fuser import model_error
 from fuser.config import FuserConfig
 from fuser.model import bias as bias_feedback
-from fuser.model.attitude import update_attitude
+from fuser.model.attitude import attitude_in_use, update_attitude
 from fuser.model.body_frame import lags_s, mean_in_state_body
 from fuser.model.diagnostics import UpdateDiagnostic, counter_name
 from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
@@ -145,13 +145,14 @@ class FusionModel:
             diagnostics.append(h.diagnostic)
             if h.exponent is not None:
                 exponent = exponent + h.exponent
-        if cfg.attitude.mode == "always":
-            attitudes = [x for x in tick.samples if isinstance(x, AttitudeSample)]
-            if attitudes:
-                a = update_attitude(cfg.attitude, attitudes, belief.mode)
-                for e in a.exponents:
-                    exponent = exponent + e
-                diagnostics += a.diagnostics
+        attitudes = [x for x in tick.samples if isinstance(x, AttitudeSample)]
+        if attitudes and attitude_in_use(cfg.attitude, track, tick.t_ns):
+            a = update_attitude(cfg.attitude, attitudes, belief.mode)
+            for e in a.exponents:
+                exponent = exponent + e
+            diagnostics += a.diagnostics
+        elif attitudes:
+            events += ["attitude_unused"] * len(attitudes)
         posterior = _multiplied(belief, exponent)
 
         # 3. bias feedback from the tick's correction

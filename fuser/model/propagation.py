@@ -103,6 +103,8 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
             continue
         h_ns = t - track.last_ns
         held = track.held_rad
+        h_s = h_ns * 1e-9
+        interval = h_s if track.interval_s is None else track.interval_s + min(1.0, h_s / params.rate_window_s) * (h_s - track.interval_s)
         if h_ns <= max_ns:
             h = h_ns * 1e-9
             half = 0.5 * h
@@ -124,7 +126,7 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
                 known_ns += hold_end - track.covered_ns
                 closed += walk2 * params.max_interval_s**3 / 3.0
             gap_ns += t - max(track.covered_ns, hold_end)
-        track = GyroTrack(t, rate, t, (0.0, 0.0, 0.0))
+        track = GyroTrack(t, rate, t, (0.0, 0.0, 0.0), interval)
     if track is None:
         return None, Motion(np.zeros(3), 0.0, 0.0, (tick_end_ns - tick_start_ns) * 1e-9, 0.0, 0, False)
     # hold the last rate to the tick's end, for at most max_interval after the sample
@@ -134,7 +136,7 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
     rate = track.last_rate_rad_s
     hx, hy, hz = rate[0] * dt_hold, rate[1] * dt_hold, rate[2] * dt_hold
     held = track.held_rad
-    track = GyroTrack(track.last_ns, rate, tick_end_ns, (held[0] + hx, held[1] + hy, held[2] + hz))
+    track = GyroTrack(track.last_ns, rate, tick_end_ns, (held[0] + hx, held[1] + hy, held[2] + hz), track.interval_s)
     known_ns += max(0, hold_end - start)
     gap_ns += tick_end_ns - max(hold_end, start)
     age_s = (tick_end_ns - track.last_ns) * 1e-9

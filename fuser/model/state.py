@@ -12,6 +12,7 @@ stays valid after further ticks and can be set into another model.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 import numpy as np
 
@@ -36,6 +37,13 @@ class GyroTrack:
     """The attitude has been carried up to here (the last tick's end)."""
     held_rad: Vec3
     """Raw rotation the hold applied since ``last_ns``: taken back when the next sample closes the interval."""
+    interval_s: float | None = None
+    """Interval between samples, low-passed over ``gyro.rate_window_s`` (None before the second sample)."""
+
+    def rate_hz(self, now_ns: int) -> float:
+        """The stream's measured rate at ``now_ns``: a stream that stops is slow."""
+        interval = max(self.interval_s or 0.0, (now_ns - self.last_ns) * 1e-9)
+        return 1.0 / interval if interval > 0.0 else math.inf
 
 
 @dataclass(frozen=True, slots=True)
