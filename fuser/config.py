@@ -36,6 +36,7 @@ __all__ = [
     "BiasSettings",
     "FuserConfig",
     "GyroSettings",
+    "ImuCheckSettings",
     "MagSettings",
     "ModelErrorSettings",
     "Range",
@@ -171,6 +172,37 @@ class GyroSettings(Settings):
     rate between samples, ``s^2 h^3 / 12`` interpolated over an interval ``h``, ``s^2 h^3 / 3`` held for ``h``."""
     min_process_variance_rad2: Annotated[float, Range(gt=0, unit="rad^2")] = 1e-18
     """Floor of the per-tick process variance: caps the noise concentration (2e18) of a zero-length tick."""
+    range_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 34.9
+    """Measuring range of the gyro (2000 deg/s, the usual MEMS maximum)."""
+    saturation_fraction: Annotated[float, Range(gt=0, le=1)] = 0.98
+    """A sample with any axis at or beyond this fraction of ``range_rad_s`` is saturated: its rate is unknown
+    (the true one may be anything beyond the range, or the sensor has failed), so the attitude is not turned
+    by it and its uncertainty grows at ``range_rad_s`` while it lasts."""
+
+
+@dataclass(frozen=True)
+class ImuCheckSettings(Settings):
+    """Cross-checks between the vehicle's IMUs: one that disagrees with the others is kept out."""
+
+    section: ClassVar[str] = "fuser.imu_check"
+
+    enabled: bool = True
+    """Compare each IMU sample with the other IMUs' latest (``compare_within_s``) and keep out those that disagree."""
+    disagree_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 1.0
+    """Rates further apart than this (plus ``angular_accel_rad_s2`` times their time difference) disagree;
+    IMUs on one board differ by their biases and vibration, a few hundredths of a rad/s."""
+    disagree_m_s2: Annotated[float, Range(gt=0, unit="m/s^2")] = 8.0
+    """Specific forces further apart than this disagree (vibration differs between IMUs by a few m/s^2)."""
+    angular_accel_rad_s2: Annotated[float, Range(ge=0, unit="rad/s^2")] = 200.0
+    """How fast the rate may change between two IMUs' samples: a flip reaches 100 rad/s^2."""
+    compare_within_s: Seconds = 0.05
+    """Only samples this close in time are compared (slower IMUs are not cross-checked)."""
+    roughness_s: Seconds = 0.5
+    """Time constant of each IMU's roughness (its squared sample-to-sample change of rate, low-passed): of two
+    IMUs that disagree, the rougher is the one kept out."""
+    fault_sigma_deg: Annotated[float, Range(ge=0, unit="deg")] = 3.0
+    """While an IMU is kept out (and ``compare_within_s`` after), the estimate rests on fewer IMUs than the
+    vehicle has: the published one is widened by this much, per axis."""
 
 
 @dataclass(frozen=True)
@@ -296,6 +328,11 @@ class AttitudeSettings(Settings):
     """One-sigma noise of the autopilot's attitude, per axis: an EKF's attitude error in flight is 1-2 deg."""
     auto_below_imu_hz: Annotated[float, Range(gt=0, unit="Hz")] = 20.0
     """``"auto"`` fuses the attitude while the measured IMU rate (all the vehicle's IMUs together) is below this."""
+    tilt_check_deg: Annotated[float, Range(gt=0, unit="deg")] = 10.0
+    """An attitude outside the innovation gate (a jump) is fused at once only if its tilt agrees with the
+    accelerometer's down within this (then the state is what went wrong); otherwise it is kept out."""
+    reanchor_after_s: Seconds = 10.0
+    """An attitude source kept out this long is fused again (it was reset, not faulty)."""
 
 
 @dataclass(frozen=True)
@@ -366,6 +403,7 @@ class FuserConfig(Settings):
     record: str | None = None
     """MCAP file to record inputs and estimates to (None: do not record)."""
     gyro: GyroSettings = GyroSettings()
+    imu_check: ImuCheckSettings = ImuCheckSettings()
     bias: BiasSettings = BiasSettings()
     rest: RestSettings = RestSettings()
     accel: AccelSettings = AccelSettings()

@@ -1,8 +1,9 @@
 """A matrix over the model's feature flags: every combination flies the same short simulated flight and stays
 accurate against the simulator's truth (VQF's tests run the same kind of matrix over its booleans).
 
-The flight: 3 s at rest (so that rest detection has something to detect), then the simulator's hover with
-small attitude changes, at 200 Hz with the simulator's noise and bias, through the real loop. Errors are
+The flight: 2 s at rest (so that rest detection has something to detect), then the simulator's hover with
+small attitude changes, at 200 Hz with the simulator's noise and bias, and a second IMU of the vehicle (its
+own bias and noise, so that the IMU cross-check has something to check), through the real loop. Errors are
 scored against the simulator's true attitude after 3 s of convergence. Without a magnetometer and without
 the autopilot's attitude the heading is unobservable (the state starts uniform), so only the tilt is scored.
 """
@@ -21,8 +22,8 @@ from drivers.sim import GRAVITY_M_S2, SIM_SOURCE, SimConfig, samples, simulate
 from fuser.config import FuserConfig
 from fuser.loop import FusionLoop
 
-REST_S = 3.0
-SIM = SimConfig(seed=1, duration_s=6.0, imu_rate_hz=200.0)
+REST_S = 2.0
+SIM = SimConfig(seed=1, duration_s=4.0, imu_rate_hz=200.0)
 TILT_BOUND_DEG = 2.5
 """RMS tilt after convergence; measured 1.1-1.8 deg (worst without any bias estimation)."""
 TOTAL_BOUND_DEG = 3.0
@@ -50,17 +51,23 @@ def _flight_with_rest():
         t = t_start + k * period_ns
         out.append((t, q0, [ImuSample(t, tuple(gyro), tuple(accel), mag, SIM_SOURCE)]))
     shift = n * period_ns
-    for t, q, ss in samples(flight):
+    second = dataclasses.replace(SIM_SOURCE, instance=1)
+    bias = 0.005 * rng.standard_normal(3)
+    for k, (t, q, ss) in enumerate(samples(flight)):
         out.append((t + shift, q, [dataclasses.replace(s, t_ns=s.t_ns + shift) for s in ss]))
+        gyro = flight.gyro_true_rad_s[k] + bias + SIM.gyro_noise_rad_s * rng.standard_normal(3)
+        accel = flight.accel_true_m_s2[k] + SIM.accel_noise_m_s2 * rng.standard_normal(3)
+        out.append((t + shift + 1_000_000, q, [ImuSample(t + shift + 1_000_000, tuple(gyro), tuple(accel), None, second)]))
     return out
 
 
 FLIGHT = _flight_with_rest()
-FLAGS = list(itertools.product([True, False], [True, False], [True, False], ["off", "always", "auto"]))
+FLAGS = list(itertools.product([True, False], [True, False], [True, False], [True, False], ["off", "always", "auto"]))
 
 
-def _errors(config: FuserConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Total and tilt error (deg) of every estimate after 3 s, against the truth at the estimate's sensor time."""
+def _errors(config: FuserConfig) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Total and tilt error (deg) of every estimate after 3 s, against the truth at the estimate's sensor time,
+    and the model's counters."""
     loop = FusionLoop(config)
     estimates = []
     for t, _, ss in FLIGHT:
@@ -76,20 +83,20 @@ def _errors(config: FuserConfig) -> tuple[np.ndarray, np.ndarray]:
     total = np.degrees(quat.angular_distance(q, truth))
     down = np.array([0.0, 0.0, 1.0])  # world down seen in the body: independent of the heading
     tilt = np.degrees(np.arccos(np.clip(np.sum(quat.rotate(quat.conjugate(q), down) * quat.rotate(quat.conjugate(truth), down), axis=1), -1, 1)))
-    return total, tilt
+    return total, tilt, dict(loop.model.counters)
 
 
-@pytest.mark.parametrize("mag, feedback, rest, attitude", FLAGS, ids=lambda v: str(v))
-def test_every_flag_combination_stays_accurate(mag, feedback, rest, attitude):
+@pytest.mark.parametrize("mag, feedback, rest, imu_check, attitude", FLAGS, ids=lambda v: str(v))
+def test_every_flag_combination_stays_accurate(mag, feedback, rest, imu_check, attitude):
     config = FuserConfig().replace(mag={"enabled": mag}, bias={"feedback_enabled": feedback}, rest={"enabled": rest},
-                                   attitude={"mode": attitude})
-    total, tilt = _errors(config)
+                                   imu_check={"enabled": imu_check}, attitude={"mode": attitude})
+    total, tilt, counters = _errors(config)
     rms = lambda v: float(np.sqrt(np.mean(v**2)))  # noqa: E731
     assert rms(tilt) < TILT_BOUND_DEG, rms(tilt)
     if attitude == "always":
         assert rms(total) < AIDED_BOUND_DEG, rms(total)
-    elif attitude == "auto" and not mag:  # a 200 Hz IMU: "auto" does not fuse the attitude, so the heading is unobservable
-        assert rms(total) > 10.0, rms(total)
+    if attitude != "always":  # two 200 Hz IMUs: "auto" does not fuse the attitude either
+        assert counters["attitude_unused"] == sum(isinstance(s, AttitudeSample) for _, _, ss in FLIGHT for s in ss), counters
     elif mag:
         assert rms(total) < TOTAL_BOUND_DEG, rms(total)
 
@@ -103,6 +110,7 @@ def test_the_flight_holds_what_the_flags_switch():
         for s in ss:
             loop.push(s, t + 1_000_000)
     loop.flush()
-    assert loop.model.counters["rest_ticks"] > 50
+    assert loop.model.counters["rest_ticks"] > 20
+    assert len(loop.model.state.imu_check.latest) == 2 and loop.model.counters["imu_disagree"] == 0
     assert any(isinstance(s, AttitudeSample) for _, _, ss in FLIGHT for s in ss)
     assert any(d["update"] == "heading" for d in loop.diagnostics().values())

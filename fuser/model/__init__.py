@@ -9,8 +9,8 @@ learnt at rest directly and in motion by integral feedback (VQF: D. Laidig,
 T. Seel, "VQF: Highly accurate IMU orientation estimation with bias
 estimation and magnetic disturbance rejection", Information Fusion 91, 2023).
 
-One module per job: :mod:`~fuser.model.propagation` (gyro integration and
-prediction), :mod:`~fuser.model.gravity`, :mod:`~fuser.model.heading`,
+One module per job: :mod:`~fuser.model.imu_check` (IMUs against each other),
+:mod:`~fuser.model.propagation` (gyro integration and prediction), :mod:`~fuser.model.gravity`, :mod:`~fuser.model.heading`,
 :mod:`~fuser.model.attitude` (the updates), :mod:`~fuser.model.gate` (their
 innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
 :mod:`~fuser.model.body_frame` (readings in the state's body frame),

@@ -4,6 +4,8 @@ Read :meth:`FusionModel.step` top to bottom: every value it uses is either
 an argument, a setting, the persistent :class:`~fuser.model.state.FilterState`
 or a local computed above it.
 
+0. **Check** (:mod:`~fuser.model.imu_check`): the vehicle's IMUs against each
+   other; a sample that disagrees is kept out of everything below.
 1. **Predict** (:mod:`~fuser.model.propagation`): each IMU's gyro
    integrated, the attitude rotated and composed with the process noise in
    closed form (progressive paper, Alg. 1).
@@ -16,8 +18,8 @@ or a local computed above it.
 3. **Bias** (:mod:`~fuser.model.rest`, :mod:`~fuser.model.bias`): measured at
    rest, learnt from the tick's correction in slow motion.
 4. **Publish**: the posterior widened by the model error
-   (:mod:`fuser.model_error`) and by the error of a gyro rate held since the
-   last sample.
+   (:mod:`fuser.model_error`), by the error of a gyro rate held since the
+   last sample, and while an IMU is kept out.
 
 The state is at the tick's end: the gyro carries it over the whole tick, and
 every reading is turned into the body frame of that instant.
@@ -25,6 +27,7 @@ every reading is turned into the body frame of that instant.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import replace
 import numpy as np
@@ -41,6 +44,7 @@ from fuser.model.body_frame import lags_s, mean_in_state_body
 from fuser.model.diagnostics import UpdateDiagnostic, counter_name
 from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
 from fuser.model.heading import FieldReference, heading_sigma_rad, update_heading
+from fuser.model.imu_check import check_imus
 from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
 from fuser.model.state import FilterState, GyroState, initial_state
@@ -92,13 +96,19 @@ class FusionModel:
         dt = tick.dt_ns * 1e-9
         placed = [x.t_ns for x in tick.samples] if tick.placed_ns is None else tick.placed_ns
         imu = [(x, t) for x, t in zip(tick.samples, placed) if isinstance(x, ImuSample)]
-        imu_samples, imu_placed = [x for x, _ in imu], [t for _, t in imu]
         events: list[str] = []
+
+        # 0. the vehicle's IMUs checked against each other: one that disagrees is kept out
+        imu_check, kept, disagreeing = check_imus(cfg.imu_check, s.imu_check, [x for x, _ in imu], [t for _, t in imu])
+        imu = [imu[i] for i in kept]
+        events += ["imu_disagree"] * disagreeing
+        imu_fault = imu_check.last_fault_ns is not None and tick.t_ns - imu_check.last_fault_ns <= max(cfg.imu_check.compare_within_s * 1e9, tick.dt_ns)
+        imu_samples, imu_placed = [x for x, _ in imu], [t for _, t in imu]
 
         # 1. predict: the gyro over the whole tick, then the closed-form prediction
         bias = bias_feedback.propagate(cfg.bias, s.bias, dt)
         track, motion = integrate_gyro(cfg.gyro, s.gyro.track, imu_samples, imu_placed, tick.t_ns - tick.dt_ns, tick.t_ns)
-        events += ["gyro_gap"] * motion.gaps
+        events += ["gyro_gap"] * motion.gaps + ["gyro_saturated"] * motion.saturated_samples
         if not imu:
             events.append("no_gyro")
         if motion.held:
@@ -109,7 +119,7 @@ class FusionModel:
         else:
             rate = prediction.rate_rad_s
             error_state = model_error.observe_rate(s.model_error, rate, dt, cfg.accel.lowpass_s)
-        gravity = turn_frame(s.gravity, prediction.rotation, motion.gap_s)
+        gravity = turn_frame(s.gravity, prediction.rotation, motion.gap_s + motion.saturated_s)
         context = TickContext(dt, prediction.variance_rad2, rms_angle_deg(prediction.attitude, self.method))
         predicted_q = prediction.attitude.mode
         raw_rate = motion.raw_rate_rad_s
@@ -146,8 +156,11 @@ class FusionModel:
             if h.exponent is not None:
                 exponent = exponent + h.exponent
         attitudes = [x for x in tick.samples if isinstance(x, AttitudeSample)]
+        attitude_source = s.attitude_source
         if attitudes and attitude_in_use(cfg.attitude, track, tick.t_ns):
-            a = update_attitude(cfg.attitude, attitudes, belief.mode)
+            a = update_attitude(cfg.attitude, cfg.updates, attitude_source, attitudes, belief.mode,
+                                gravity.down_body if gravity.tilt_known else None, context)
+            attitude_source = a.state
             for e in a.exponents:
                 exponent = exponent + e
             diagnostics += a.diagnostics
@@ -159,11 +172,13 @@ class FusionModel:
         if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, rate, context.prior_doubt_deg):
             bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, interval)
 
-        # 4. publish: widened by the model error and by the error of a rate held since the last sample
-        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, motion.hold_variance_rad2)
+        # 4. publish: widened by the model error, the error of a rate held since the last sample, and an IMU kept out
+        widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
+        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening)
 
         self._state = replace(s, attitude=posterior, bias=bias, rest=rest, gravity=gravity, heading=heading, model_error=error_state,
-                              gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns))
+                              gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
+                              attitude_source=attitude_source, imu_check=imu_check)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
         return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))

@@ -26,6 +26,11 @@ lasts (:attr:`Motion.hold_variance_rad2`), since the next sample corrects
 what the hold applied, unless the hold runs out (then it enters the state,
 and the rest of the gap counts at ``gyro.gap_rate_rad_s``).
 
+**Saturation.** A sample at or beyond ``gyro.saturation_fraction`` of the
+range on any axis says only that the rate is out of range (or the sensor
+failed): from the last good sample to the next one the rate is unknown, the
+attitude is not turned, and the uncertainty grows at ``gyro.range_rad_s``.
+
 The rotation ``u`` and the noise ``w`` (isotropic) then give the prediction
 in closed form (progressive paper, Alg. 1: ``M`` rotated by ``u`` on the
 right, eq. 6; composition with ``w`` by moment matching, QBF paper, A.9).
@@ -62,6 +67,9 @@ class Motion:
     """Interpolation error of the intervals closed in this tick, and the held rotation of a hold that ran out."""
     gap_s: float
     """Seconds of the tick without any rate (no sample yet, or the hold ran out)."""
+    saturated_s: float
+    """Seconds of the tick after a saturated sample: the rate is beyond the range or unknown."""
+    saturated_samples: int
     hold_variance_rad2: float
     """Error of the rate held at the tick's end: published, not in the state (corrected by the next sample)."""
     gaps: int
@@ -75,15 +83,24 @@ class Motion:
         return self.raw_rotation_rad / self.known_s if self.known_s > 0.0 else None
 
 
-def _merged(samples: Sequence[ImuSample], placed_ns: Sequence[int]) -> list[tuple[int, tuple[float, float, float]]]:
-    """The tick's gyro samples as one stream in time order; samples of several IMUs at one instant averaged."""
+def _saturated(params: GyroSettings, rate: Vec3) -> bool:
+    limit = params.saturation_fraction * params.range_rad_s
+    return abs(rate[0]) >= limit or abs(rate[1]) >= limit or abs(rate[2]) >= limit
+
+
+def _merged(params: GyroSettings, samples: Sequence[ImuSample], placed_ns: Sequence[int]) -> list[tuple[int, Vec3, bool]]:
+    """The tick's gyro samples as one stream in time order, saturated or not; samples of several IMUs at one
+    instant averaged (the unsaturated ones, if any)."""
     by_time: dict[int, list[Vec3]] = {}
     for s, t in zip(samples, placed_ns):
         by_time.setdefault(t, []).append(s.gyro_rad_s)
     out = []
     for t in sorted(by_time):
-        rates = by_time[t]
-        out.append((t, rates[0] if len(rates) == 1 else tuple(sum(r[i] for r in rates) / len(rates) for i in range(3))))  # type: ignore[misc]
+        rates = [r for r in by_time[t] if not _saturated(params, r)]
+        if not rates:
+            out.append((t, by_time[t][0], True))
+        else:
+            out.append((t, rates[0] if len(rates) == 1 else tuple(sum(r[i] for r in rates) / len(rates) for i in range(3)), False))  # type: ignore[arg-type]
     return out
 
 
@@ -93,19 +110,24 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
     samples (each at its placed time in the tick); the track after it (module docstring)."""
     max_ns = round(params.max_interval_s * 1e9)
     walk2 = params.rate_walk_rad_s_rt_s**2
-    x = y = z = known_ns = gap_ns = 0.0
+    x = y = z = known_ns = gap_ns = saturated_ns = 0.0
     closed = 0.0
-    gaps = 0
-    for t, rate in _merged(samples, placed_ns):
+    gaps = saturated_samples = 0
+    for t, rate, saturated in _merged(params, samples, placed_ns):
+        saturated_samples += saturated
         if track is None:  # the first sample ever: nothing before it is known
             gap_ns += t - tick_start_ns
-            track = GyroTrack(t, rate, t, (0.0, 0.0, 0.0))
+            track = GyroTrack(t, rate, t, (0.0, 0.0, 0.0), saturated=saturated)
             continue
         h_ns = t - track.last_ns
         held = track.held_rad
         h_s = h_ns * 1e-9
         interval = h_s if track.interval_s is None else track.interval_s + min(1.0, h_s / params.rate_window_s) * (h_s - track.interval_s)
-        if h_ns <= max_ns:
+        if saturated or track.saturated:  # no rate from the last good sample to the next: what a hold applied stays
+            saturated_ns += t - track.covered_ns
+            if not track.saturated and track.covered_ns < track.last_ns + max_ns:
+                closed += walk2 * ((track.covered_ns - track.last_ns) * 1e-9) ** 3 / 3.0
+        elif h_ns <= max_ns:
             h = h_ns * 1e-9
             half = 0.5 * h
             last = track.last_rate_rad_s
@@ -126,9 +148,16 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
                 known_ns += hold_end - track.covered_ns
                 closed += walk2 * params.max_interval_s**3 / 3.0
             gap_ns += t - max(track.covered_ns, hold_end)
-        track = GyroTrack(t, rate, t, (0.0, 0.0, 0.0), interval)
+        track = GyroTrack(t, rate, t, (0.0, 0.0, 0.0), interval, saturated)
     if track is None:
-        return None, Motion(np.zeros(3), 0.0, 0.0, (tick_end_ns - tick_start_ns) * 1e-9, 0.0, 0, False)
+        return None, Motion(np.zeros(3), known_s=0.0, closed_variance_rad2=0.0, gap_s=(tick_end_ns - tick_start_ns) * 1e-9,
+                            saturated_s=0.0, saturated_samples=0, hold_variance_rad2=0.0, gaps=0, held=False)
+    if track.saturated:
+        saturated_ns += tick_end_ns - track.covered_ns
+        track = GyroTrack(track.last_ns, track.last_rate_rad_s, tick_end_ns, (0.0, 0.0, 0.0), track.interval_s, True)
+        motion = Motion(np.array([x, y, z]), known_ns * 1e-9, closed, gap_ns * 1e-9, saturated_ns * 1e-9, saturated_samples, 0.0, gaps,
+                        not samples)
+        return track, motion
     # hold the last rate to the tick's end, for at most max_interval after the sample
     hold_end = min(tick_end_ns, track.last_ns + max_ns)
     start = track.covered_ns
@@ -136,7 +165,7 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
     rate = track.last_rate_rad_s
     hx, hy, hz = rate[0] * dt_hold, rate[1] * dt_hold, rate[2] * dt_hold
     held = track.held_rad
-    track = GyroTrack(track.last_ns, rate, tick_end_ns, (held[0] + hx, held[1] + hy, held[2] + hz), track.interval_s)
+    track = GyroTrack(track.last_ns, rate, tick_end_ns, (held[0] + hx, held[1] + hy, held[2] + hz), track.interval_s, False)
     known_ns += max(0, hold_end - start)
     gap_ns += tick_end_ns - max(hold_end, start)
     age_s = (tick_end_ns - track.last_ns) * 1e-9
@@ -146,7 +175,8 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
         hold_variance = 0.0
     else:
         hold_variance = walk2 * age_s**3 / 3.0
-    motion = Motion(np.array([x + hx, y + hy, z + hz]), known_ns * 1e-9, closed, gap_ns * 1e-9, hold_variance, gaps, not samples)
+    motion = Motion(np.array([x + hx, y + hy, z + hz]), known_ns * 1e-9, closed, gap_ns * 1e-9, saturated_ns * 1e-9, saturated_samples,
+                    hold_variance, gaps, not samples)
     return track, motion
 
 
@@ -195,7 +225,7 @@ def predict(gyro: GyroSettings, bias_params: BiasSettings, attitude: Bingham, bi
     """
     correlation_s = bias_params.time_constant_s if bias_params.feedback_enabled else bias_params.correlation_without_feedback_s
     variance = gyro.noise_rad_s_rt_hz**2 * dt_s + bias.variance_rad2_s2 * correlation_s * dt_s
-    variance += motion.closed_variance_rad2 + (gyro.gap_rate_rad_s * motion.gap_s) ** 2
+    variance += motion.closed_variance_rad2 + (gyro.gap_rate_rad_s * motion.gap_s) ** 2 + (gyro.range_rad_s * motion.saturated_s) ** 2
     u = rate_norm = None
     if motion.known_s > 0.0:
         rotvec = motion.raw_rotation_rad - bias.estimate_rad_s * motion.known_s

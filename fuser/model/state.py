@@ -20,9 +20,10 @@ from core import quaternion as quat
 from core.bingham import Bingham
 from drivers.samples import Vec3
 from fuser.config import FuserConfig
+from fuser.model.imu_check import ImuCheckState
 from fuser.model_error import ModelErrorState
 
-__all__ = ["BiasState", "FilterState", "GravityState", "GyroState", "GyroTrack", "HeadingState", "RestState", "initial_state"]
+__all__ = ["AttitudeState", "BiasState", "FilterState", "GravityState", "GyroState", "GyroTrack", "HeadingState", "RestState", "initial_state"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -39,6 +40,8 @@ class GyroTrack:
     """Raw rotation the hold applied since ``last_ns``: taken back when the next sample closes the interval."""
     interval_s: float | None = None
     """Interval between samples, low-passed over ``gyro.rate_window_s`` (None before the second sample)."""
+    saturated: bool = False
+    """The last sample was saturated: the rate since it is unknown."""
 
     def rate_hz(self, now_ns: int) -> float:
         """The stream's measured rate at ``now_ns``: a stream that stops is slow."""
@@ -101,6 +104,12 @@ class HeadingState:
 
 
 @dataclass(frozen=True, slots=True)
+class AttitudeState:
+    gated_s: float = 0.0
+    """Seconds the autopilot's attitude has been kept out as a jump."""
+
+
+@dataclass(frozen=True, slots=True)
 class FilterState:
     """Everything one tick hands to the next."""
 
@@ -111,6 +120,8 @@ class FilterState:
     rest: RestState = RestState()
     gravity: GravityState = GravityState()
     heading: HeadingState = HeadingState()
+    attitude_source: AttitudeState = AttitudeState()
+    imu_check: ImuCheckState = ImuCheckState()
     model_error: ModelErrorState = ModelErrorState()
 
 
