@@ -147,3 +147,17 @@ def test_cli_with_a_bad_config_exits_2_with_one_line_naming_the_key(tmp_path, ca
     assert main(["replay", str(LOGS / "sim_hover.mcap"), "-o", str(tmp_path / "o.mcap"), "--config", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "fuser.rate_hz must be a number, got 'fast'" in err[0]
+
+
+def test_cli_flags_map_onto_the_groups():
+    """``_config`` turns the command line's flags into settings (the attitude policy's switches among them)."""
+    import argparse
+
+    from fuser.cli import _config
+
+    base = dict(config=None, vehicle="v", rate_hz=50.0, no_mag=True, zenoh_listen=["tcp/127.0.0.1:9"], zenoh_connect=None)
+    config = _config(argparse.Namespace(**base, attitude_sigma_deg=1.5))
+    assert (config.vehicle, config.rate_hz, config.mag.enabled, config.zenoh.listen) == ("v", 50.0, False, ("tcp/127.0.0.1:9",))
+    assert (config.attitude.mode, config.attitude.sigma_deg) == ("always", 1.5)
+    assert _config(argparse.Namespace(**base, no_attitude=True)).attitude.mode == "off"
+    assert _config(argparse.Namespace(**base)).attitude.mode == "auto"

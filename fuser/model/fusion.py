@@ -29,7 +29,6 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from dataclasses import replace
 import numpy as np
 
 from core.bingham import Bingham
@@ -47,7 +46,7 @@ from fuser.model.heading import FieldReference, heading_sigma_rad, update_headin
 from fuser.model.imu_check import check_imus
 from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
-from fuser.model.state import FilterState, GyroState, initial_state
+from fuser.model.state import FilterState, GyroState, HeadingState, initial_state
 from fuser.model.tick import TickContext, TickInput, TickResult
 
 __all__ = ["FusionModel"]
@@ -148,7 +147,7 @@ class FusionModel:
         mag = self._mag_in_state_body(tick, imu, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
         if mag is not None:
             since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
-            heading = replace(heading, last_reading_ns=tick.t_ns)
+            heading = HeadingState(heading.gated_s, tick.t_ns)
             sigma = heading_sigma_rad(cfg.mag, cfg.bias, gravity.converged, context, bias.variance_rad2_s2, since)
             h = update_heading(cfg.mag, cfg.updates, self._field, heading, gravity, context, mag, belief.mode, sigma)
             heading = h.state
@@ -176,9 +175,9 @@ class FusionModel:
         widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
         published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening)
 
-        self._state = replace(s, attitude=posterior, bias=bias, rest=rest, gravity=gravity, heading=heading, model_error=error_state,
-                              gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
-                              attitude_source=attitude_source, imu_check=imu_check)
+        self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
+                                  rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
+                                  model_error=error_state)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
         return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))

@@ -28,7 +28,7 @@ this one's inputs and a :class:`GravityReading` out.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -64,11 +64,10 @@ def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -
     """The strapdown frame after the tick's gyro rotation. A gap in the gyro (``gap_s`` of the tick without a
     rate) breaks the frame: the body turned by an unknown rotation, so the low-pass's memory is dropped and the
     update starts again as before convergence (raw readings until the state is sure again)."""
-    if rotation is not None:
-        state = replace(state, q_strapdown=quat.normalize(quat.multiply(state.q_strapdown, rotation)))
-    if gap_s > 0.0 and state.converged:
-        state = replace(state, accel_lp_m_s2=None, converged=False)
-    return state
+    q = state.q_strapdown if rotation is None else quat.normalize(quat.multiply(state.q_strapdown, rotation))
+    broken = gap_s > 0.0 and state.converged
+    return GravityState(q, None if broken else state.accel_lp_m_s2, state.down_body, state.converged and not broken, state.tilt_known,
+                        state.gated_s)
 
 
 def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_variance_rad2_s2: float) -> float:
@@ -97,29 +96,26 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
         # the low-pass starts from the filter's own estimate (at rest: -g down), not from one raw reading
         start = to_inertial @ (-params.gravity_m_s2 * predicted_down) if state.accel_lp_m_s2 is None else state.accel_lp_m_s2
         lowpassed = start + min(1.0, interval_s / tau_s) * (f_inertial - start)
-    state = replace(state, accel_lp_m_s2=lowpassed, converged=converged)
     measured = f_inertial if lowpassed is None else lowpassed
     norm = math.sqrt(float(measured @ measured))
     norm_error = abs(norm - params.gravity_m_s2) / params.gravity_m_s2
     if norm_error > params.norm_gate_fraction:
-        return GravityReading(state, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"))
+        kept = GravityState(state.q_strapdown, lowpassed, state.down_body, converged, state.tilt_known, state.gated_s)
+        return GravityReading(kept, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"))
     filtered_body = measured @ to_inertial
     down_body = -filtered_body / norm
-    state = replace(state, down_body=down_body)
     if converged:  # Q = q T / dt over the interval T
         sigma = math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau_s / max(interval_s, 1e-6)
     else:
         sigma = params.sigma_rad
     innovation = math.acos(max(-1.0, min(1.0, float(down_body @ predicted_down))))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, tick.dt_s)
-    if not state.tilt_known:
-        outcome = "fused"  # nothing to gate against before the first tilt
-    else:
-        outcome = verdict.outcome
-        state = replace(state, gated_s=verdict.gated_s)
+    # nothing to gate against before the first tilt
+    outcome, gated_s = (verdict.outcome, verdict.gated_s) if state.tilt_known else ("fused", state.gated_s)
     diagnostic = UpdateDiagnostic.of("gravity", outcome, "innovation" if outcome == "gated" else "", innovation, sigma, verdict.test_ratio)
-    if outcome == "gated":
-        return GravityReading(state, None, False, False, diagnostic)
-    exponent = vector_exponent(-filtered_body, DOWN_NED, sigma)
+    fused = outcome != "gated"
+    after = GravityState(state.q_strapdown, lowpassed, down_body, converged, state.tilt_known or fused, gated_s)
+    if not fused:
+        return GravityReading(after, None, False, False, diagnostic)
     trusted = converged and norm_error < 0.5 * params.norm_gate_fraction
-    return GravityReading(replace(state, tilt_known=True), exponent, not state.tilt_known, trusted, diagnostic)
+    return GravityReading(after, vector_exponent(-filtered_body, DOWN_NED, sigma), not state.tilt_known, trusted, diagnostic)

@@ -13,7 +13,7 @@ magnet near the sensor cannot tilt the estimate. Readings whose norm or dip
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -90,7 +90,7 @@ def update_heading(params: MagSettings, updates: UpdateSettings, reference: Fiel
     verdict = innovation_gate(updates, state.gated_s, abs(error), max(sigma_rad, params.sigma_rad), tick.prior_doubt_deg, tick.dt_s)
     diagnostic = UpdateDiagnostic.of("heading", verdict.outcome, "innovation" if verdict.outcome == "gated" else "",
                                      abs(error), sigma_rad, verdict.test_ratio)
-    state = replace(state, gated_s=verdict.gated_s)
+    state = HeadingState(verdict.gated_s, state.last_reading_ns)
     if verdict.outcome == "gated":
         return HeadingReading(state, None, diagnostic)
     return HeadingReading(state, heading_exponent(current_q, error, sigma_rad), diagnostic)

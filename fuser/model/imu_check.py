@@ -47,9 +47,10 @@ class ImuCheckState:
 def _roughness(params: ImuCheckSettings, before: ImuLatest | None, s: ImuSample, t_ns: int) -> float:
     if before is None:
         return 0.0
-    step = np.subtract(s.gyro_rad_s, before.gyro_rad_s)
+    (x, y, z), (bx, by, bz) = s.gyro_rad_s, before.gyro_rad_s
+    step2 = (x - bx) ** 2 + (y - by) ** 2 + (z - bz) ** 2
     a = min(1.0, (t_ns - before.t_ns) * 1e-9 / params.roughness_s)
-    return before.roughness_rad2_s2 + a * (float(step @ step) - before.roughness_rad2_s2)
+    return before.roughness_rad2_s2 + a * (step2 - before.roughness_rad2_s2)
 
 
 def _agrees(params: ImuCheckSettings, gyro: np.ndarray, accel: np.ndarray, ref_gyro: np.ndarray, ref_accel: np.ndarray, dt_s: float) -> bool:
@@ -66,12 +67,12 @@ def check_imus(params: ImuCheckSettings, state: ImuCheckState, samples: Sequence
     kept: list[int] = []
     out = 0
     last_fault = state.last_fault_ns
+    window_ns = params.compare_within_s * 1e9
     for i in sorted(range(len(samples)), key=lambda k: placed_ns[k]):
         s, t = samples[i], placed_ns[i]
         mine = ImuLatest(t, s.gyro_rad_s, s.accel_m_s2, _roughness(params, latest.get(s.source), s, t))
         latest[s.source] = mine
-        window_ns = params.compare_within_s * 1e9
-        others = [o for src, o in latest.items() if src != s.source and t - o.t_ns <= window_ns]
+        others = [o for src, o in latest.items() if src != s.source and t - o.t_ns <= window_ns] if len(latest) > 1 else []
         good = True
         if params.enabled and others:
             gyro, accel = np.asarray(s.gyro_rad_s), np.asarray(s.accel_m_s2)
