@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from drivers.sim import SimConfig, simulate  # noqa: E402
-from fuser.config import FuserConfig  # noqa: E402
+from fuser.config import FuserConfig, ZenohSettings  # noqa: E402
 from fuser.pipeline import Pipeline  # noqa: E402
 from fuser.record import McapRecorder, read_log  # noqa: E402
 from fuser.replay import replay  # noqa: E402
@@ -84,9 +84,9 @@ def bench_live(seconds: float, imu_hz: float, record: Path | None = None) -> dic
 
     udp, zport = free_port(socket.SOCK_DGRAM), free_port()
     endpoint = f"tcp/127.0.0.1:{zport}"
-    config = FuserConfig(vehicle="bench", zenoh_listen=(endpoint,))
+    config = FuserConfig(vehicle="bench", zenoh=ZenohSettings(listen=(endpoint,)))
     source = MavlinkSource(f"udpin:127.0.0.1:{udp}")
-    pub = ZenohPublisher(zenoh_config(list(config.zenoh_listen), []), config.vehicle)
+    pub = ZenohPublisher(zenoh_config(list(config.zenoh.listen), []), config.vehicle)
     subscriber = subprocess.Popen([sys.executable, str(ROOT / "examples" / "subscribe.py"), "--connect", endpoint, "--vehicle", "bench"],
                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     lead = 3.0

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """BROAD benchmark: the Bingham fuser (import -> replay, the user's code path) against VQF and Madgwick.
 
-    python benchmarks/broad.py [--trials DIR] [--quick] [--config FILE.toml] [--set key=value ...]
+    python benchmarks/broad.py [--trials DIR] [--quick] [--config FILE.toml] [--set group.key=value ...]
 
 Data: the BROAD benchmark (D. Laidig, M. Caruso, A. Cereatti, T. Seel, "BROAD - A Benchmark for Robust
 Inertial Orientation Estimation", Data 6(7):72, 2021, doi:10.3390/data6070072; CC-BY-4.0), default
@@ -165,7 +165,7 @@ def run_fuser(data, config: FuserConfig, workdir: Path, name: str) -> FuserRun:
     mcap_in = workdir / f"{name}.mcap"
     summary = write_mcap(data, mcap_in)
     import_s = time.perf_counter() - t0
-    cfg = config.replace(mag_field_ned_gauss=tuple(summary.mag_field_ned_gauss))
+    cfg = config.replace(mag={"field_ned_gauss": tuple(summary.mag_field_ned_gauss)})
     rs = replay(mcap_in, workdir / f"{name}_fused.mcap", cfg, progress=None)
     est = [e for e in read_log(workdir / f"{name}_fused.mcap").estimates() if e.sensor_t_ns is not None]
     return FuserRun(
@@ -343,7 +343,7 @@ def main(argv=None) -> int:
     ap.add_argument("--trials", default=str(ROOT.parent / "shared" / "data" / "broad"), help="folder of BROAD .hdf5 trials")
     ap.add_argument("--quick", action="store_true", help="only the first 75 s of each trial, no plots, no RESULTS.md")
     ap.add_argument("--config", help="FuserConfig TOML (one parameter set for all trials)")
-    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a FuserConfig field (JSON value)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a setting (JSON value; group.key, e.g. accel.lowpass_s=2)")
     ap.add_argument("--only", help="substring: run only matching trials")
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--no-write", action="store_true", help="do not update benchmarks/RESULTS.md")
@@ -357,7 +357,7 @@ def main(argv=None) -> int:
         print(f"broad.py needs h5py, vqf and ahrs: pip install 'bingham-fuser[import,bench]' ({exc})", file=sys.stderr)
         return 2
     sets = parse_sets(args.set)
-    config = load_config(args.config, **sets)
+    config = load_config(args.config, sets)
     trials = sorted(Path(args.trials).glob("*.hdf5"))
     if args.only:
         trials = [t for t in trials if args.only in t.name]

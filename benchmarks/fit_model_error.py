@@ -44,7 +44,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from broad import interp_quat  # noqa: E402
 from fuser.codec import Estimate, decode_sample  # noqa: E402
-from fuser.config import FuserConfig  # noqa: E402
+from fuser.config import FuserConfig, MagSettings, ModelErrorSettings  # noqa: E402
 from fuser.importers import BROAD_ATTRIBUTION, broad_quat_to_ned, read_broad, write_mcap  # noqa: E402
 from fuser.model_error import model_error_variances, widened_concentrations  # noqa: E402
 from fuser.pipeline import Pipeline  # noqa: E402
@@ -74,12 +74,12 @@ def run_unwidened(path: Path, workdir: Path) -> TrialStates:
     data = read_broad(path, 0.0, None)
     mcap = workdir / f"{path.stem}.mcap"
     summary = write_mcap(data, mcap)
-    config = FuserConfig(tilt_model_error_deg=0.0, heading_model_error_deg=0.0, rate_model_error_s=0.0,
-                         mag_field_ned_gauss=tuple(summary.mag_field_ned_gauss))
+    config = FuserConfig(model_error=ModelErrorSettings(tilt_deg=0.0, heading_deg=0.0, rate_s=0.0),
+                         mag=MagSettings(field_ned_gauss=tuple(summary.mag_field_ned_gauss)))
     ticks: list[tuple[Estimate, float]] = []
     pipeline = Pipeline(config, max_catch_up_ticks=MAX_CATCH_UP_TICKS)
     model = pipeline.loop.model
-    pipeline.outputs.append(lambda est: ticks.append((est, model.model_error.recent_rate_rad_s**2)))
+    pipeline.outputs.append(lambda est: ticks.append((est, model.state.model_error.rate_sq)))
     for m in read_log(mcap).of(INPUT_TOPICS):
         pipeline.feed(*decode_sample(m.topic, json.loads(m.data)))
     pipeline.finish()
@@ -99,9 +99,9 @@ def run_unwidened(path: Path, workdir: Path) -> TrialStates:
     )
 
 
-def score(trial: TrialStates, config: FuserConfig) -> tuple[np.ndarray, float]:
+def score(trial: TrialStates, params: ModelErrorSettings) -> tuple[np.ndarray, float]:
     """Coverage (%) of the 50/90/95 % regions and mean log-likelihood (up to a constant) of the truth."""
-    tilt, heading = model_error_variances(config, trial.rate_sq)
+    tilt, heading = model_error_variances(params, trial.rate_sq, heading_floor=True)
     z = widened_concentrations(trial.M, trial.Z, tilt[:, None], heading[:, None])
     y = np.einsum("nij,ni->nj", trial.M[:, :, :3], trial.q_true)
     exponent = np.sum(z * y * y, axis=1)
@@ -116,8 +116,8 @@ def grid_scores(trials: list[TrialStates]) -> tuple[list[tuple[float, float, flo
     for h in HEADING_DEG:
         for t in TILT_DEG:
             for r in RATE_S:
-                config = FuserConfig(heading_model_error_deg=float(h), tilt_model_error_deg=float(t), rate_model_error_s=float(r))
-                scores = [score(trial, config) for trial in trials]
+                candidate = ModelErrorSettings(heading_deg=float(h), tilt_deg=float(t), rate_s=float(r))
+                scores = [score(trial, candidate) for trial in trials]
                 params.append((float(h), float(t), float(r)))
                 cov.append([c for c, _ in scores])
                 ll.append([l for _, l in scores])
@@ -155,9 +155,9 @@ def main(argv=None) -> int:
     params, cov, ll = grid_scores(trials)
     n = len(trials)
     everyone = np.ones(n, bool)
-    default = FuserConfig()
+    default = ModelErrorSettings()
     scores = [score(t, default) for t in trials]
-    d = (default.heading_model_error_deg, default.tilt_model_error_deg, default.rate_model_error_s)
+    d = (default.heading_deg, default.tilt_deg, default.rate_s)
     print(describe("configured defaults", d, np.array([c for c, _ in scores]), np.array([l for _, l in scores])))
     for label, within in (("maximum likelihood", None), (f"max. likelihood, within {args.within:g} points", args.within)):
         i = best(cov, ll, everyone, within)

@@ -1,14 +1,14 @@
 #!/usr/bin/env python3
 """A real PX4 flight: the Bingham fuser, VQF and Madgwick against PX4 EKF2's attitude.
 
-    python benchmarks/px4.py [--log ../shared/data/px4/sample.ulg] [--config FILE.toml] [--set key=value ...]
+    python benchmarks/px4.py [--log ../shared/data/px4/sample.ulg] [--config FILE.toml] [--set group.key=value ...]
 
 Data: ``sample.ulg`` from the pyulog project (github.com/PX4/pyulog, BSD-3-Clause). EKF2's
 ``vehicle_attitude`` is a reference, **not** ground truth: the table is the *difference* to EKF2.
 
 * Bingham fuser: ``bingham-fuser import`` (MAVLink HIGHRES_IMU + ATTITUDE_QUATERNION -> MCAP) then
   :func:`fuser.replay.replay` with the same fixed configuration as ``benchmarks/broad.py``
-  (the autopilot's attitude is *not* fused: ``attitude_sigma_deg`` stays None), reference field from
+  (the autopilot's attitude is *not* fused: ``attitude.mode`` is ``"off"``), reference field from
   the importer.
 * VQF (defaults, 9-D, ``Ts`` = median sample interval) and Madgwick (ahrs, beta 0.12, per-sample dt)
   are fed the same FRD vectors; their earth frames (ENU for VQF; NWU for Madgwick, composed into ENU
@@ -52,7 +52,7 @@ def main(argv=None) -> int:
     except ImportError:
         print("px4.py needs pyulog: pip install 'bingham-fuser[import]'", file=sys.stderr)
         return 2
-    config = load_config(args.config, **parse_sets(args.set))
+    config = load_config(args.config, parse_sets(args.set))
     data = read_px4(args.log)
     print(f"PX4: {args.log}\n{PX4_ATTRIBUTION}\n", flush=True)
     with tempfile.TemporaryDirectory() as tmp:

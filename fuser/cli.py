@@ -152,6 +152,8 @@ def _fusion_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("fusion")
     g.add_argument("--rate", type=float, dest="rate_hz", metavar="HZ", help="estimates per second (default: 100)")
     g.add_argument("--no-mag", action="store_true", help="6-D fusion: ignore magnetometers")
+    g.add_argument("--no-attitude", action="store_true", help="never fuse the autopilot's attitude messages (by default they "
+                   "are fused while the IMU arrives too slowly to carry the attitude: [fuser.attitude] mode)")
 
 
 def _vehicle_option(p: argparse.ArgumentParser) -> None:
@@ -380,17 +382,20 @@ def _check_output(path: str, option: str) -> None:
 def _config(args: argparse.Namespace) -> FuserConfig:
     overrides: dict[str, Any] = {"vehicle": args.vehicle, "rate_hz": args.rate_hz}
     if args.no_mag:
-        overrides["use_mag"] = False
-    for name in ("zenoh_listen", "zenoh_connect"):
-        if getattr(args, name, None):
-            overrides[name] = tuple(getattr(args, name))
+        overrides["mag.enabled"] = False
+    for name in ("listen", "connect"):
+        if getattr(args, f"zenoh_{name}", None):
+            overrides[f"zenoh.{name}"] = tuple(getattr(args, f"zenoh_{name}"))
     if getattr(args, "attitude_sigma_deg", None) is not None:
-        overrides["attitude_sigma_deg"] = args.attitude_sigma_deg
-    config = load_config(args.config, **overrides)
-    link = {k: getattr(args, k) for k in ("system", "component", "signing_key_file", "dialect") if getattr(args, k, None) is not None}
+        overrides["attitude.mode"] = "always"
+        overrides["attitude.sigma_deg"] = args.attitude_sigma_deg
+    if getattr(args, "no_attitude", False):
+        overrides["attitude.mode"] = "off"
+    for name in ("system", "component", "signing_key_file", "dialect"):
+        overrides[f"link.{name}"] = getattr(args, name, None)
     if getattr(args, "any_sender", False):
-        link["lock_first_autopilot"] = False
-    return config.replace(link=dataclasses.replace(config.link, **link)) if link else config
+        overrides["link.lock_first_autopilot"] = False
+    return load_config(args.config, overrides)
 
 
 def _load_config(args: argparse.Namespace) -> FuserConfig | None:
@@ -412,14 +417,14 @@ def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
     from fuser.publish import ZenohOpenError, ZenohPublisher, zenoh_config
 
     try:
-        pub = ZenohPublisher.open(zenoh_config(list(config.zenoh_listen), list(config.zenoh_connect)), config.vehicle)
+        pub = ZenohPublisher.open(zenoh_config(list(config.zenoh.listen), list(config.zenoh.connect)), config.vehicle)
     except ZenohOpenError as e:
         if e.endpoint_in_use:
             raise FuserError(
                 f"zenoh cannot listen on {e.endpoint_in_use}: the port is in use (another bingham-fuser, or a zenoh router "
                 f"such as ROS 2's rmw_zenoh); listen elsewhere with --zenoh-listen tcp/127.0.0.1:PORT, or connect to that "
                 f"router with --zenoh-connect {e.endpoint_in_use} (or --no-zenoh)") from e
-        endpoints = ", ".join((*config.zenoh_listen, *config.zenoh_connect))
+        endpoints = ", ".join((*config.zenoh.listen, *config.zenoh.connect))
         hint = ": an endpoint is <protocol>/<address>, e.g. tcp/127.0.0.1:7447" if e.malformed else ""
         raise type(e)(f"zenoh cannot open a session with endpoints {endpoints}: {e.reason}{hint}", malformed=e.malformed) from e
     stack.callback(pub.close)
@@ -626,7 +631,7 @@ def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
 
     _check_listen(args)
     # a listener connects to the fuser's endpoint unless told otherwise
-    connect = list(config.zenoh_connect) or list(config.zenoh_listen)
+    connect = list(config.zenoh.connect) or list(config.zenoh.listen)
     listen(zenoh_config(listen=[], connect=connect), config.vehicle, json_output=args.json, count=args.count)
     return 0
 

@@ -97,8 +97,12 @@ class Estimate:
     ``q_wxyz`` rotates body FRD into world NED. ``M`` (4x4, row-major) and
     ``Z`` are the full Bingham posterior; ``uncertainty_deg`` its RMS
     angular deviation; ``euler_deg`` roll, pitch, yaw (ZYX) for convenience.
-    ``sensor_t_ns`` is the tick time on the clock of the first IMU stream
-    (the sender's own time), to line estimates up with autopilot logs.
+    ``sensor_t_ns`` is the tick time on the clock of the reference IMU (the
+    loop's first IMU stream; the sender's own time), to line estimates up with
+    autopilot logs. ``diagnostics`` says what each measurement update did in
+    the tick (:class:`fuser.model.diagnostics.UpdateDiagnostic` as dicts); it
+    is not part of the estimate's payload but recorded beside it on
+    ``/diagnostics`` (:meth:`diagnostics_json`).
     """
 
     t_ns: int
@@ -109,6 +113,7 @@ class Estimate:
     euler_deg: tuple[float, float, float]
     counters: dict[str, int] = field(default_factory=dict)
     sensor_t_ns: int | None = None
+    diagnostics: tuple[dict[str, Any], ...] = field(default=(), compare=False)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -125,6 +130,10 @@ class Estimate:
     def to_json(self) -> bytes:
         """The estimate as published and recorded (``dumps`` of :meth:`to_dict`)."""
         return dumps(self.to_dict())
+
+    def diagnostics_json(self) -> bytes:
+        """The tick's update diagnostics as recorded on ``/diagnostics``: ``{"t_ns", "updates": [...]}``."""
+        return dumps({"t_ns": self.t_ns, "updates": list(self.diagnostics)})
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Estimate:

@@ -1,129 +1,421 @@
-"""All tuning and wiring of the fuser in one typed object, read from TOML and overridden by flags."""
+"""The fuser's configuration: general settings plus one frozen, validated dataclass per group.
+
+Layout (after PX4 EKF2's grouped ``struct parameters`` in ``EKF/common.h`` and
+VQF's ``VQFParams``, whose features are switched by booleans, never by a 0
+that means "off"):
+
+* ``[fuser]``: general settings (``vehicle``, ``rate_hz``, ``latency_ms``, ``record``);
+* ``[fuser.<group>]``: one table per group (:class:`GyroSettings` as ``gyro``,
+  :class:`BiasSettings` as ``bias``, ...), one field of :class:`FuserConfig` each.
+
+Every name carries its unit. Each group validates its values when it is
+constructed (types, ranges, time constants > 0), whether it comes from a
+file or from code, and every error names the key, e.g.
+``fuser.accel.lowpass_s must be > 0 s, got 0``. The loader is generic: a new
+group is one more field of :class:`FuserConfig` whose default is a frozen
+dataclass; :class:`Settings` and :data:`Range` give it the same validation.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import difflib
+import math
 import tomllib
+import types
+import typing
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, ClassVar, Literal
 
 from drivers.link import LinkSettings
 from fuser.mavlink_out import MavlinkOutSettings
 from fuser.ros2 import Ros2Settings
 
-__all__ = ["FuserConfig", "load_config"]
+__all__ = [
+    "AccelSettings",
+    "AttitudeSettings",
+    "BiasSettings",
+    "FuserConfig",
+    "GyroSettings",
+    "ImuCheckSettings",
+    "MagSettings",
+    "ModelErrorSettings",
+    "Range",
+    "RestSettings",
+    "Settings",
+    "UpdateSettings",
+    "ZenohSettings",
+    "load_config",
+]
 
 
 @dataclass(frozen=True)
-class FuserConfig:
+class Range:
+    """Bounds of a numeric setting (``Annotated[float, Range(gt=0, unit="s")]``) and its unit for messages."""
+
+    gt: float | None = None
+    ge: float | None = None
+    lt: float | None = None
+    le: float | None = None
+    unit: str = ""
+
+    def violation(self, value: float) -> str | None:
+        """The bound ``value`` breaks, as text (``"> 0 s"``), or None."""
+        unit = f" {self.unit}" if self.unit else ""
+        for bound, op, ok in ((self.gt, ">", lambda b: value > b), (self.ge, ">=", lambda b: value >= b),
+                              (self.lt, "<", lambda b: value < b), (self.le, "<=", lambda b: value <= b)):
+            if bound is not None and not ok(bound):
+                return f"{op} {bound:g}{unit}"
+        return None
+
+
+def _check(key: str, hint: Any, value: Any) -> Any:
+    """``value`` checked against the type hint ``hint`` (and its :class:`Range`), converted where the
+    type says so (int -> float, list -> tuple); a ValueError naming ``key`` otherwise."""
+    bounds = None
+    if typing.get_origin(hint) is Annotated:
+        hint, *extra = typing.get_args(hint)
+        bounds = next((e for e in extra if isinstance(e, Range)), None)
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    given = value
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        (inner,) = [a for a in args if a is not type(None)]
+        return _check(key, Annotated[inner, bounds] if bounds else inner, value)
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"{key} must be a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"{key} must be a finite number, got {value!r}")
+        value = float(value)
+    elif hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ValueError(f"{key} must be an integer, got {value!r}")
+    elif hint is bool:
+        if not isinstance(value, bool):
+            raise ValueError(f"{key} must be true or false, got {value!r}")
+    elif hint is str:
+        if not isinstance(value, str):
+            raise ValueError(f"{key} must be a string, got {value!r}")
+    elif origin is Literal:
+        if value not in args:
+            raise ValueError(f"{key} must be one of {', '.join(map(repr, args))}, got {value!r}")
+    elif origin is tuple:
+        if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+            raise ValueError(f"{key} must be a list, got {value!r}")
+        items = args[:1] * len(value) if len(args) == 2 and args[1] is Ellipsis else args
+        if len(items) != len(value):
+            raise ValueError(f"{key} must be a list of {len(items)} values, got {list(value)!r}")
+        return tuple(_check(f"{key}[{i}]", Annotated[t, bounds] if bounds else t, v) for i, (t, v) in enumerate(zip(items, value)))
+    else:
+        raise TypeError(f"{key}: unsupported setting type {hint!r}")
+    if bounds is not None and (broken := bounds.violation(value)) is not None:
+        raise ValueError(f"{key} must be {broken}, got {given!r}")
+    return value
+
+
+@cache
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls, include_extras=True)
+
+
+class Settings:
+    """Base of every settings group: validates each field against its type hint when constructed.
+
+    A group is ``@dataclass(frozen=True)``, sets ``section`` (its key in the
+    file, e.g. ``"fuser.accel"``), annotates each field with its type and,
+    for numbers, a :class:`Range`; cross-field rules go in :meth:`_validate`.
+    """
+
+    section: ClassVar[str]
+
+    def __post_init__(self) -> None:
+        hints = _hints(type(self))
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            value, hint = getattr(self, f.name), hints[f.name]
+            if isinstance(hint, type) and dataclasses.is_dataclass(hint):
+                if type(value) is not hint:  # a nested group validates itself
+                    raise ValueError(f"{self.section}.{f.name} must be a {hint.__name__} ([{self.section}.{f.name}]), got {value!r}")
+                continue
+            checked = _check(f"{self.section}.{f.name}", hint, value)
+            if checked is not value:
+                object.__setattr__(self, f.name, checked)
+        self._validate()
+
+    def _validate(self) -> None:
+        """Rules between fields (override)."""
+
+
+Seconds = Annotated[float, Range(gt=0, unit="s")]
+
+
+@dataclass(frozen=True)
+class GyroSettings(Settings):
+    """The rate gyro and the prediction (process noise) it drives."""
+
+    section: ClassVar[str] = "fuser.gyro"
+
+    noise_rad_s_rt_hz: Annotated[float, Range(ge=0, unit="rad/s/sqrt(Hz)")] = 3e-4
+    """White-noise density of the rate."""
+    scale_error_fraction: Annotated[float, Range(ge=0, lt=1)] = 0.01
+    """Relative scale and misalignment error: process noise proportional to the rotation rate."""
+    gap_rate_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 1.0
+    """Assumed rotation rate while no gyro data arrives: how fast the uncertainty grows in a gap."""
+    max_interval_s: Seconds = 0.6
+    """Longest interval between two gyro samples that is integrated, and the longest the last rate is held
+    after a sample; longer ones are gaps. 0.6 s integrates a telemetry link's 2 Hz."""
+    rate_window_s: Seconds = 1.0
+    """Time constant over which the IMU rate is measured (the sample interval, low-passed): ``attitude.mode =
+    "auto"`` fuses the autopilot's attitude while it is slow."""
+    rate_walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 0.3
+    """How fast the true rate may depart from the last sample (a random walk of the rate): the error of the
+    rate between samples, ``s^2 h^3 / 12`` interpolated over an interval ``h``, ``s^2 h^3 / 3`` held for ``h``."""
+    min_process_variance_rad2: Annotated[float, Range(gt=0, unit="rad^2")] = 1e-18
+    """Floor of the per-tick process variance: caps the noise concentration (2e18) of a zero-length tick."""
+    range_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 34.9
+    """Measuring range of the gyro (2000 deg/s, the usual MEMS maximum)."""
+    saturation_fraction: Annotated[float, Range(gt=0, le=1)] = 0.98
+    """A sample with any axis at or beyond this fraction of ``range_rad_s`` is saturated: its rate is unknown
+    (the true one may be anything beyond the range, or the sensor has failed), so the attitude is not turned
+    by it and its uncertainty grows at ``range_rad_s`` while it lasts."""
+
+
+@dataclass(frozen=True)
+class ImuCheckSettings(Settings):
+    """Cross-checks between the vehicle's IMUs: one that disagrees with the others is kept out."""
+
+    section: ClassVar[str] = "fuser.imu_check"
+
+    enabled: bool = True
+    """Compare each IMU sample with the other IMUs' latest (``compare_within_s``) and keep out those that disagree."""
+    disagree_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 1.0
+    """Rates further apart than this (plus ``angular_accel_rad_s2`` times their time difference) disagree;
+    IMUs on one board differ by their biases and vibration, a few hundredths of a rad/s."""
+    disagree_m_s2: Annotated[float, Range(gt=0, unit="m/s^2")] = 8.0
+    """Specific forces further apart than this disagree (vibration differs between IMUs by a few m/s^2)."""
+    angular_accel_rad_s2: Annotated[float, Range(ge=0, unit="rad/s^2")] = 200.0
+    """How fast the rate may change between two IMUs' samples: a flip reaches 100 rad/s^2."""
+    compare_within_s: Seconds = 0.05
+    """Only samples this close in time are compared (slower IMUs are not cross-checked)."""
+    roughness_s: Seconds = 0.5
+    """Time constant of each IMU's roughness (its squared sample-to-sample change of rate, low-passed): of two
+    IMUs that disagree, the rougher is the one kept out."""
+    fault_sigma_deg: Annotated[float, Range(ge=0, unit="deg")] = 3.0
+    """While an IMU is kept out (and ``compare_within_s`` after), the estimate rests on fewer IMUs than the
+    vehicle has: the published one is widened by this much, per axis."""
+
+
+@dataclass(frozen=True)
+class BiasSettings(Settings):
+    """The gyro bias: a point estimate beside the Bingham, learnt at rest (:class:`RestSettings`) and by
+    integral feedback in slow motion; its uncertainty enters the process noise as a correlated error."""
+
+    section: ClassVar[str] = "fuser.bias"
+
+    initial_sigma_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.015
+    """Uncertainty of the bias before it has been learnt (one sigma, per axis); also its ceiling."""
+    floor_sigma_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 0.003
+    """Uncertainty the estimate settles to while it is learnt in motion (integral feedback)."""
+    walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 1e-4
+    """Random walk of the bias (temperature, instability): a bias learnt at rest is not trusted for ever."""
+    feedback_enabled: bool = True
+    """Learn the bias in motion by integral feedback of the tick's correction (Mahony-style)."""
+    time_constant_s: Seconds = 5.0
+    """Time constant of the feedback, and the correlation time of the residual bias in the process noise."""
+    correlation_without_feedback_s: Seconds = 10.0
+    """Correlation time of the residual bias in the process noise while the feedback is off."""
+    learn_max_rate_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
+    """Feedback only in ticks rotating slower than this, with a trusted accelerometer."""
+    learn_max_uncertainty_deg: Annotated[float, Range(gt=0, unit="deg")] = 5.0
+    """Feedback only when the prediction was this sure: a guess (uniform start, after a gap) is not drift."""
+    max_abs_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
+    """Clamp of each axis of the estimate: beyond any MEMS gyro's bias, stops a wrong start from running away."""
+    min_variance_rad2_s2: Annotated[float, Range(gt=0, unit="(rad/s)^2")] = 1e-18
+    """Floor of the bias variance where a time constant divides by its square root."""
+
+    def _validate(self) -> None:
+        if self.floor_sigma_rad_s > self.initial_sigma_rad_s:
+            raise ValueError(f"{self.section}.floor_sigma_rad_s must be <= initial_sigma_rad_s "
+                             f"({self.initial_sigma_rad_s:g} rad/s), got {self.floor_sigma_rad_s!r}")
+
+
+@dataclass(frozen=True)
+class RestSettings(Settings):
+    """Rest detection and the bias measured at rest (VQF's rest detection: restMinT, restFilterTau, restThGyr,
+    restThAcc, biasSigmaRest)."""
+
+    section: ClassVar[str] = "fuser.rest"
+
+    enabled: bool = True
+    """Detect rest and measure the gyro bias directly from the low-passed gyro while at rest."""
+    min_s: Seconds = 1.5
+    """At rest once gyro and accelerometer have stayed within their thresholds this long."""
+    filter_s: Seconds = 0.5
+    """Time constant of the detector's low-pass filters."""
+    gyro_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.035
+    """Threshold on the gyro's deviation from its low-pass, and on the low-passed rate itself, so that a
+    slow steady turn is not taken for a bias (VQF's restThGyr and biasClip, 2 deg/s)."""
+    accel_m_s2: Annotated[float, Range(gt=0, unit="m/s^2")] = 0.5
+    """Threshold on the accelerometer's deviation from its low-pass."""
+    bias_sigma_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 5e-4
+    """Noise of the low-passed gyro as a measurement of the bias (0.03 deg/s)."""
+
+
+@dataclass(frozen=True)
+class AccelSettings(Settings):
+    """The accelerometer as a gravity-direction measurement (the gravity update)."""
+
+    section: ClassVar[str] = "fuser.accel"
+
+    sigma_rad: Annotated[float, Range(gt=0, unit="rad")] = 0.1
+    """Direction noise of a raw reading, used until the state has first converged (a fast start)."""
+    lowpass_s: Seconds = 3.0
+    """Longest time constant of the low-pass in the gyro-predicted inertial frame, which is also the tilt
+    correction's once converged (VQF's tauAcc); reached once the bias is known (``tilt_bias_error_deg``)."""
+    tilt_bias_error_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
+    """Tilt error a residual bias may build up within one correction time constant: the time constant is
+    ``tilt_bias_error / bias sigma``, capped at ``lowpass_s`` (fast while the bias is unknown)."""
+    norm_gate_fraction: Annotated[float, Range(gt=0)] = 0.2
+    """Gate when | |f| - g | / g of the low-passed specific force exceeds this (manoeuvres, impacts)."""
+    gravity_m_s2: Annotated[float, Range(gt=0, unit="m/s^2")] = 9.80665
+    """Local gravity: the norm the gate expects."""
+
+
+@dataclass(frozen=True)
+class MagSettings(Settings):
+    """The magnetometer as a yaw-only heading measurement (the heading update)."""
+
+    section: ClassVar[str] = "fuser.mag"
+
+    enabled: bool = True
+    """Fuse magnetometer headings (false: 6-D fusion, heading from the gyro only)."""
+    field_ned_gauss: tuple[float, float, float] = (0.21, 0.0, 0.43)
+    """Expected earth field (north, east, down): the heading reference and the norm and dip gates'."""
+    sigma_rad: Annotated[float, Range(gt=0, unit="rad")] = 0.3
+    """Heading noise per tick until the state has converged, and the least sigma the innovation gate assumes."""
+    error_deg: Annotated[float, Range(gt=0, unit="deg")] = 2.0
+    """Heading error of the magnetometer once converged (one sigma): local distortion along the path, tilt
+    error through the dip. Correlated over ``correlation_s``, so the per-tick sigma is
+    ``error sqrt(correlation_s / dt)``: counted once per correlation time. Measured on BROAD 16: the
+    magnetometer's heading sits 1-3 deg off the truth for 10-30 s at a time."""
+    correlation_s: Seconds = 10.0
+    """Correlation time of the heading error (see ``error_deg``)."""
+    heading_bias_error_deg: Annotated[float, Range(gt=0, unit="deg")] = 1.5
+    """Heading error a residual gyro bias may build up within one heading-correction time constant, as
+    ``accel.tilt_bias_error_deg`` for the tilt: an unlearnt bias cannot drag the heading away."""
+    norm_gate_fraction: Annotated[float, Range(gt=0)] = 0.1
+    """Gate when the field's norm departs from the expected one by this fraction."""
+    dip_gate_deg: Annotated[float, Range(gt=0, unit="deg")] = 10.0
+    """Gate when the field's dip (against the measured gravity) departs from the expected one by this much."""
+
+    def _validate(self) -> None:
+        if math.hypot(*self.field_ned_gauss) == 0.0:
+            raise ValueError(f"{self.section}.field_ned_gauss must not be zero, got {list(self.field_ned_gauss)!r}")
+
+
+@dataclass(frozen=True)
+class AttitudeSettings(Settings):
+    """An autopilot's own attitude (ATTITUDE, ATTITUDE_QUATERNION, DroneCAN Solution) as a measurement."""
+
+    section: ClassVar[str] = "fuser.attitude"
+
+    mode: Literal["auto", "always", "off"] = "auto"
+    """``"auto"``: fuse the attitude while the IMU is too slow to carry the estimate (below
+    ``auto_below_imu_hz``, or no IMU at all: a telemetry radio), not while it is fast (a wired link, where
+    the autopilot's estimate would only pull ours towards its own); ``"always"``: fuse every attitude sample;
+    ``"off"``: never."""
+    sigma_deg: Annotated[float, Range(gt=0, unit="deg")] = 2.0
+    """One-sigma noise of the autopilot's attitude, per axis: an EKF's attitude error in flight is 1-2 deg."""
+    auto_below_imu_hz: Annotated[float, Range(gt=0, unit="Hz")] = 20.0
+    """``"auto"`` fuses the attitude while the measured IMU rate (all the vehicle's IMUs together) is below this."""
+    tilt_check_deg: Annotated[float, Range(gt=0, unit="deg")] = 10.0
+    """An attitude outside the innovation gate (a jump) is fused at once only if its tilt agrees with the
+    accelerometer's down within this (then the state is what went wrong); otherwise it is kept out."""
+    reanchor_after_s: Seconds = 10.0
+    """An attitude source kept out this long is fused again (it was reset, not faulty)."""
+
+
+@dataclass(frozen=True)
+class UpdateSettings(Settings):
+    """What every measurement update shares: the innovation gate and the start-up phase."""
+
+    section: ClassVar[str] = "fuser.updates"
+
+    innovation_gate_sigma: Annotated[float, Range(gt=0)] = 3.0
+    """Gate a gravity or heading reading further than this many sigma (sensor and state) from the prediction."""
+    reanchor_after_s: Seconds = 0.5
+    """After this long of continuous gating a reading is fused again, so that a wrong state can recover."""
+    converged_deg: Annotated[float, Range(gt=0, unit="deg")] = 10.0
+    """Above this RMS uncertainty the state counts as unconverged (raw accelerometer, fast fixes)."""
+
+
+@dataclass(frozen=True)
+class ModelErrorSettings(Settings):
+    """Published uncertainty only: the errors the filter cannot see (:mod:`fuser.model_error`).
+
+    Composed into every estimate as an independent world-frame error (a
+    consider term; the filter's own state and gains are unchanged). The
+    three values are fitted on the eight BROAD trials by
+    ``benchmarks/fit_model_error.py``: the highest mean log-likelihood of the
+    truth among the sets whose 50/90/95 % regions cover within 5 points of nominal.
+    """
+
+    section: ClassVar[str] = "fuser.model_error"
+
+    tilt_deg: Annotated[float, Range(ge=0, unit="deg")] = 0.2
+    """Floor of the tilt error (accelerometer bias and misalignment), one sigma per axis."""
+    heading_deg: Annotated[float, Range(ge=0, unit="deg")] = 3.25
+    """Floor of the heading error (local field distortion, an offset the motion never reveals); only with a
+    magnetometer. Set mostly by BROAD trial 27, whose heading sits a steady 4.5-7 deg off; 0.75 without it."""
+    rate_s: Annotated[float, Range(ge=0, unit="s")] = 0.00225
+    """Attitude error (rad, every axis) per rad/s of the recent RMS rotation rate: time-stamp and
+    synchronisation errors (``rate dt``) and scale errors left over the correction time (``s rate T``)."""
+
+
+@dataclass(frozen=True)
+class ZenohSettings(Settings):
+    """Where the estimates are published (``bingham_fuser/<vehicle>/...``)."""
+
+    section: ClassVar[str] = "fuser.zenoh"
+
+    listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
+    """Endpoints the fuser listens on."""
+    connect: tuple[str, ...] = ()
+    """Routers or peers it connects to."""
+
+
+@dataclass(frozen=True)
+class FuserConfig(Settings):
     """Every setting of the fuser; defaults suit a small multirotor with a MEMS IMU.
 
-    Noise figures are one-sigma. Frames: body FRD, world NED.
+    Noise figures are one-sigma. Frames: body FRD, world NED. The general
+    settings are the ``[fuser]`` table, each group a ``[fuser.<group>]`` table.
     """
+
+    section: ClassVar[str] = "fuser"
 
     vehicle: str = "sim"
     """Name used in the zenoh key expressions ``bingham_fuser/<vehicle>/...``."""
-    rate_hz: float = 100.0
+    rate_hz: Annotated[float, Range(gt=0, unit="Hz")] = 100.0
     """Estimates per second (one per tick)."""
-    latency_ms: float = 5.0
+    latency_ms: Annotated[float, Range(ge=0, unit="ms")] = 5.0
     """How long a tick waits after its due time for samples still in flight."""
-    gyro_noise_rad_s_rt_hz: float = 3e-4
-    """Gyro white-noise density."""
-    gyro_bias_rad_s: float = 0.015
-    """Uncertainty of the gyro bias before it has been learnt (one sigma, per axis)."""
-    gyro_bias_floor_rad_s: float = 0.003
-    """Uncertainty the bias estimate settles to while it is learnt in motion (integral feedback)."""
-    gyro_bias_walk_rad_s_rt_s: float = 1e-4
-    """Random walk of the gyro bias (temperature, instability): the bias uncertainty grows by this
-    much per square-root second, so a bias learnt at rest is not trusted for ever."""
-    bias_time_constant_s: float = 5.0
-    """Time constant of the gyro bias estimate (0 disables bias estimation); also the
-    correlation time of the residual bias in the process noise."""
-    bias_learn_max_rate_rad_s: float = 0.2
-    """The bias is learnt only in ticks rotating slower than this, with a trusted accelerometer."""
-    rest_min_s: float = 1.5
-    """Rest detection (VQF): the sensor counts as at rest once the gyro and accelerometer have stayed
-    within ``rest_gyro_rad_s`` and ``rest_accel_m_s2`` of their low-passed values this long; at rest
-    the gyro bias is estimated directly from the low-passed gyro (0 disables rest detection)."""
-    rest_filter_s: float = 0.5
-    """Time constant of the low-pass filters of the rest detector (VQF's restFilterTau)."""
-    rest_gyro_rad_s: float = 0.035
-    """Rest threshold on the gyro's deviation from its low-pass, and on the low-passed rate itself,
-    so that a slow steady turn is not taken for a bias (VQF's restThGyr and biasClip, 2 deg/s)."""
-    rest_accel_m_s2: float = 0.5
-    """Rest threshold on the accelerometer's deviation from its low-pass (VQF's restThAcc)."""
-    rest_bias_sigma_rad_s: float = 5e-4
-    """Noise of the low-passed gyro as a measurement of the bias at rest (VQF's biasSigmaRest, 0.03 deg/s)."""
-    gyro_scale_error: float = 0.01
-    """Relative gyro scale and misalignment error: process noise proportional to the rotation rate."""
-    gyro_gap_rate_rad_s: float = 1.0
-    """Assumed rotation rate while no gyro data arrives: how fast uncertainty grows in a gap."""
-    max_gyro_dt_s: float = 0.1
-    """Longer gaps between two gyro samples of one IMU are not integrated."""
-    accel_sigma_rad: float = 0.1
-    """Direction noise of a raw gravity measurement (used until the tilt is known)."""
-    accel_lowpass_s: float = 3.0
-    """Longest time constant of the accelerometer low-pass in the gyro-predicted world frame, which is
-    also the time constant of tilt corrections once converged (VQF's tauAcc), used once the gyro bias
-    is known well (see ``tilt_bias_error_deg``)."""
-    tilt_bias_error_deg: float = 0.5
-    """Tilt error a residual gyro bias may build up within one tilt-correction time constant: the time
-    constant is ``tilt_bias_error / bias sigma``, capped at ``accel_lowpass_s``, so the tilt is corrected
-    fast while the bias is unknown and slowly (less linear acceleration in the tilt) once it is learnt."""
-    converged_deg: float = 10.0
-    """Above this RMS uncertainty the state counts as unconverged: raw accelerometer, fast fixes."""
-    accel_gate: float = 0.2
-    """Reject the accelerometer when | |f| - g | / g exceeds this (manoeuvres, impacts)."""
-    innovation_gate_sigma: float = 3.0
-    """Reject a gravity or heading reading further than this many sigma (sensor and state) from the prediction."""
-    innovation_reanchor_s: float = 0.5
-    """After this long of continuous rejections the reading is accepted again, so a wrong state can recover."""
-    tilt_model_error_deg: float = 0.2
-    """Published uncertainty only: one-sigma floor of the tilt error the filter cannot see (accelerometer
-    bias and misalignment), composed into every estimate as an independent world-frame error (a consider
-    term, :mod:`fuser.model_error`; the filter's own state and gains are unchanged). The three model-error
-    parameters are fitted on the eight BROAD trials by ``benchmarks/fit_model_error.py``: the highest mean
-    log-likelihood of the truth among the sets whose 50/90/95 % regions cover within 5 points of nominal."""
-    heading_model_error_deg: float = 3.25
-    """Published uncertainty only: one-sigma floor of the heading error the filter cannot see (local
-    distortion of the reference field, a magnetometer offset the motion never reveals), composed like
-    ``tilt_model_error_deg``; not applied without a magnetometer. Set mostly by BROAD trial 27, whose
-    heading sits a steady 4.5-7 deg off (a phone's field); fitted without it, 0.75 deg."""
-    rate_model_error_s: float = 0.00225
-    """Published uncertainty only: one-sigma attitude error (rad, on every axis) per rad/s of the recent
-    RMS rotation rate (low-passed over ``accel_lowpass_s``): time-stamp and synchronisation errors
-    (``rate * dt``) and gyro scale or misalignment errors left over the correction time (``s * rate * T``),
-    so a time ``dt + s T`` (2.25 ms: 1.1 deg per axis at 500 deg/s)."""
-    use_mag: bool = True
-    mag_sigma_rad: float = 0.3
-    """Heading noise per tick until the state has converged (a fast start), and the least sigma the
-    heading innovation gate assumes; once converged see ``mag_error_deg``."""
-    mag_error_deg: float = 2.0
-    """Heading error of the magnetometer once converged (one sigma): local distortion of the field along
-    the path and the tilt error seen through the dip. These errors are correlated over
-    ``mag_correlation_s``, so the per-tick sigma is ``mag_error sqrt(mag_correlation_s / dt)``: counted once
-    per correlation time, not once per tick. Measured on BROAD 16 (fast translation): the magnetometer's
-    heading (through the estimated tilt) sits 1-3 deg off the truth for 10-30 s at a time."""
-    mag_correlation_s: float = 10.0
-    """Correlation time of the magnetometer's heading error (see ``mag_error_deg``)."""
-    heading_bias_error_deg: float = 1.5
-    """Heading error a residual gyro bias may build up within one heading-correction time constant: while
-    the bias is poorly known the per-tick sigma is lowered to ``sqrt(q) tau / dt`` (``q`` the tick's process
-    variance) with ``tau = heading_bias_error / bias sigma``, as for the tilt (``tilt_bias_error_deg``), so
-    an unlearnt bias cannot drag the heading away while the magnetometer is trusted slowly."""
-    mag_field_ned_gauss: tuple[float, float, float] = (0.21, 0.0, 0.43)
-    """Expected earth field (north, east, down): reference for heading, norm and dip gates."""
-    mag_norm_gate: float = 0.1
-    """Reject the magnetometer when its norm departs from the expected one by this fraction."""
-    mag_dip_gate_deg: float = 10.0
-    """Reject the magnetometer when its dip departs from the expected one by this much."""
-    attitude_sigma_deg: float | None = None
-    """If set, autopilot ATTITUDE(_QUATERNION) messages are identity measurements with this noise."""
-    zenoh_listen: tuple[str, ...] = ("tcp/127.0.0.1:7447",)
-    zenoh_connect: tuple[str, ...] = ()
     record: str | None = None
     """MCAP file to record inputs and estimates to (None: do not record)."""
+    gyro: GyroSettings = GyroSettings()
+    imu_check: ImuCheckSettings = ImuCheckSettings()
+    bias: BiasSettings = BiasSettings()
+    rest: RestSettings = RestSettings()
+    accel: AccelSettings = AccelSettings()
+    mag: MagSettings = MagSettings()
+    attitude: AttitudeSettings = AttitudeSettings()
+    updates: UpdateSettings = UpdateSettings()
+    model_error: ModelErrorSettings = ModelErrorSettings()
+    zenoh: ZenohSettings = ZenohSettings()
     link: LinkSettings = LinkSettings()
     """MAVLink vehicle selection, signing and dialect (``[fuser.link]``; see drivers/link.py)."""
     ros2: Ros2Settings = Ros2Settings()
@@ -132,35 +424,121 @@ class FuserConfig:
     """MAVLink output to ground stations (``[fuser.mavlink_out]``; ``--mavlink-out CONN``): :mod:`fuser.mavlink_out`."""
 
     def replace(self, **changes: Any) -> FuserConfig:
-        """A copy with some settings changed (None values are ignored)."""
-        return dataclasses.replace(self, **{k: v for k, v in changes.items() if v is not None})
+        """A copy with some settings changed: general ones by value, a group by a mapping of its fields
+        (``config.replace(rate_hz=50, mag={"enabled": False})``) or by a whole group."""
+        values: dict[str, Any] = {}
+        for key, value in changes.items():
+            current = getattr(self, key, None)
+            if dataclasses.is_dataclass(current) and isinstance(value, Mapping):
+                value = dataclasses.replace(current, **value)  # type: ignore[type-var]
+            values[key] = value
+        return dataclasses.replace(self, **values)
 
 
-def load_config(path: str | Path | None, **overrides: Any) -> FuserConfig:
-    """Defaults, then the TOML file's ``[fuser]`` table (or top level), then ``overrides``.
+MOVED: dict[str, str] = {
+    "gyro_noise_rad_s_rt_hz": "gyro.noise_rad_s_rt_hz",
+    "gyro_scale_error": "gyro.scale_error_fraction",
+    "gyro_gap_rate_rad_s": "gyro.gap_rate_rad_s",
+    "max_gyro_dt_s": "gyro.max_interval_s",
+    "gyro_bias_rad_s": "bias.initial_sigma_rad_s",
+    "gyro_bias_floor_rad_s": "bias.floor_sigma_rad_s",
+    "gyro_bias_walk_rad_s_rt_s": "bias.walk_rad_s_rt_s",
+    "bias_time_constant_s": "bias.time_constant_s",
+    "bias_learn_max_rate_rad_s": "bias.learn_max_rate_rad_s",
+    "rest_min_s": "rest.min_s",
+    "rest_filter_s": "rest.filter_s",
+    "rest_gyro_rad_s": "rest.gyro_rad_s",
+    "rest_accel_m_s2": "rest.accel_m_s2",
+    "rest_bias_sigma_rad_s": "rest.bias_sigma_rad_s",
+    "accel_sigma_rad": "accel.sigma_rad",
+    "accel_lowpass_s": "accel.lowpass_s",
+    "tilt_bias_error_deg": "accel.tilt_bias_error_deg",
+    "accel_gate": "accel.norm_gate_fraction",
+    "converged_deg": "updates.converged_deg",
+    "innovation_gate_sigma": "updates.innovation_gate_sigma",
+    "innovation_reanchor_s": "updates.reanchor_after_s",
+    "tilt_model_error_deg": "model_error.tilt_deg",
+    "heading_model_error_deg": "model_error.heading_deg",
+    "rate_model_error_s": "model_error.rate_s",
+    "use_mag": "mag.enabled",
+    "mag_field_ned_gauss": "mag.field_ned_gauss",
+    "mag_sigma_rad": "mag.sigma_rad",
+    "mag_error_deg": "mag.error_deg",
+    "mag_correlation_s": "mag.correlation_s",
+    "heading_bias_error_deg": "mag.heading_bias_error_deg",
+    "mag_norm_gate": "mag.norm_gate_fraction",
+    "mag_dip_gate_deg": "mag.dip_gate_deg",
+    "attitude_sigma_deg": "attitude.sigma_deg",
+    "zenoh_listen": "zenoh.listen",
+    "zenoh_connect": "zenoh.connect",
+}
+"""Flat keys of the configuration before it was grouped, and where each one lives now."""
+_SWITCHES = {
+    "bias_time_constant_s": "bias.feedback_enabled = false switches the feedback off",
+    "rest_min_s": "rest.enabled = false switches rest detection off",
+    "attitude_sigma_deg": 'attitude.mode = "always" fuses the attitude',
+}
+"""Old keys whose 0 or None used to switch a feature: the flag that does it now."""
 
-    Unknown keys are an error naming the key, so a typo never goes unnoticed.
-    """
+
+def _build(cls: type, table: Mapping[str, Any], section: str) -> Any:
+    """``cls`` from a TOML table: nested tables build the groups; unknown and moved keys are errors naming the key."""
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.init}
     values: dict[str, Any] = {}
+    for key, value in table.items():
+        if key not in fields:
+            if section == "fuser" and key in MOVED:
+                group, _, name = MOVED[key].partition(".")
+                note = f" ({_SWITCHES[key]})" if key in _SWITCHES else ""
+                raise ValueError(f"{section}.{key} has moved: set {name} under [fuser.{group}]{note}")
+            near = difflib.get_close_matches(key, list(fields), n=1)
+            raise ValueError(f"{section}.{key} is not a setting" + (f" (did you mean {near[0]}?)" if near else ""))
+        default = fields[key].default
+        if dataclasses.is_dataclass(default):
+            if not isinstance(value, Mapping):
+                raise ValueError(f"{section}.{key} must be a table [{section}.{key}], got {value!r}")
+            value = _build(type(default), value, f"{section}.{key}")
+        values[key] = value
+    return cls(**values)
+
+
+def _merge(base: dict[str, Any], changes: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for key, value in changes.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            value = _merge(out[key], value)
+        out[key] = value
+    return out
+
+
+def _nested(overrides: Mapping[str, Any]) -> dict[str, Any]:
+    """Dotted keys (``"mag.enabled"``) as nested tables; None values (a flag not given) dropped."""
+    out: dict[str, Any] = {}
+    for key, value in overrides.items():
+        if value is None:
+            continue
+        *groups, name = key.split(".")
+        table = out
+        for g in groups:
+            table = table.setdefault(g, {})
+        table[name] = value
+    return out
+
+
+def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | None = None) -> FuserConfig:
+    """Defaults, then the TOML file's ``[fuser]`` table (or its top level), then ``overrides``.
+
+    ``overrides`` holds general keys and dotted group keys (``{"rate_hz": 50,
+    "mag.enabled": False}``; None means "not given"). Every value is checked as
+    if it came from the file; unknown keys, keys of the old flat layout and
+    wrong types are errors naming the key.
+    """
+    table: dict[str, Any] = {}
     if path is not None:
         with open(path, "rb") as f:
             data = tomllib.load(f)
-        values = data.get("fuser", data)
-    known = {f.name: f for f in dataclasses.fields(FuserConfig)}
-    unknown = sorted(set(values) - set(known))
-    if unknown:
-        raise ValueError(f"unknown setting(s) in {path}: {', '.join(unknown)}")
-    for key, value in list(values.items()):
-        if isinstance(value, list):
-            values[key] = tuple(value)
-        elif isinstance(value, dict) and dataclasses.is_dataclass(known[key].default):
-            values[key] = _group(type(known[key].default), key, value, path)
-    return FuserConfig(**values).replace(**overrides)
-
-
-def _group(cls: type, name: str, values: dict[str, Any], path: str | Path | None) -> Any:
-    """A settings group from its TOML table ``[fuser.<name>]``; unknown keys are an error naming them."""
-    unknown = sorted(set(values) - {f.name for f in dataclasses.fields(cls)})
-    if unknown:
-        raise ValueError(f"unknown setting(s) in [fuser.{name}] of {path}: {', '.join(f'{name}.{k}' for k in unknown)}")
-    return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in values.items()})
+        table = data.get("fuser", data)
+    try:
+        return _build(FuserConfig, _merge(table, _nested(overrides or {})), "fuser")
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}" if path is not None else str(exc)) from None

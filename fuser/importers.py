@@ -431,7 +431,7 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
         cfg = Path(config_path)
         cfg.write_text(
             f"# reference field for {out.name}, measured by bingham-fuser import (see fuser/importers.py)\n"
-            f"[fuser]\nmag_field_ned_gauss = [{field_ned[0]}, {field_ned[1]}, {field_ned[2]}]\n"
+            f"[fuser.mag]\nfield_ned_gauss = [{field_ned[0]}, {field_ned[1]}, {field_ned[2]}]\n"
         )
     return ImportSummary(out, counts[ImuSample], counts[AttitudeSample], truth, dict(decoder.stats), field_ned, cfg,  # type: ignore[arg-type]
                          counts[GnssSample], dict(data.skipped))

@@ -24,7 +24,7 @@ import numpy as np
 from drivers.base import SampleSource
 from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
-from fuser.model import FusionModel
+from fuser.model import FusionModel, TickInput
 from fuser.pipeline import Pipeline
 from fuser.wallclock import WallClock
 
@@ -89,7 +89,7 @@ def _warm_up(pipeline: Pipeline) -> None:
         t = (k + 1) * 10_000_000
         imu = [] if k == 3 else [ImuSample(t - 5_000_000, (0.01, 0.0, 0.0), (0.0, 0.0, -9.8), (0.21, 0.0, 0.43), src),
                                  ImuSample(t, (0.01, 0.0, 0.0), (0.0, 0.0, -9.8), (0.21, 0.0, 0.43), src)]
-        model.step([*imu, AttitudeSample(t, (1.0, 0.0, 0.0, 0.0), src)], 10_000_000, t)
+        model.step(TickInput(t, 10_000_000, [*imu, AttitudeSample(t, (1.0, 0.0, 0.0, 0.0), src)]))
 
 
 class LiveRunner:
@@ -135,6 +135,7 @@ class LiveRunner:
             "estimates": self.pipeline.estimates,
             "loop": dict(self.pipeline.loop.counters),
             "model": dict(self.pipeline.loop.model.counters),
+            "diagnostics": self.pipeline.loop.diagnostics(),
             "sources": {name: {**dict(src.stats), **t.health(now)} for (name, src), t in zip(self.sources.items(), self._threads)},
             "runner": dict(self.counters),
             "latency": latency,

@@ -11,21 +11,41 @@ sender's precise spacing, anchored to the receiver's clock. Tick ``T`` (on a
 grid of ``1/rate``) fuses the samples placed in ``(T - period, T]`` and runs
 once the clock reaches ``T + latency``; a sample placed at or before a tick
 that already ran is late, counted and dropped.
+
+The loop is the one owner of this timeline: it hands the model each tick's
+samples with their placed times (:class:`fuser.model.TickInput`), and picks
+the reference IMU (the first IMU stream to arrive), whose clock the
+estimates' ``sensor_t_ns`` is on.
+
+One vehicle. The first IMU's vehicle (:func:`vehicle_of`) is the one fused:
+its IMUs (ArduPilot's RAW_IMU, SCALED_IMU2, SCALED_IMU3 are instances 0, 1,
+2, each on its own clock) are fused together, and IMU or attitude samples of
+any other vehicle are counted (``other_vehicle``) and dropped, never
+averaged with it. The model returns a plain
+:class:`fuser.model.TickResult`; the wire :class:`~fuser.codec.Estimate` is
+built here from it (:func:`estimate_of`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from bisect import bisect_right
 from collections import Counter
+from typing import Any, Mapping
 
-from drivers.samples import ImuSample, Sample
+from drivers.euler import euler_from_quaternion
+from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
 from fuser.config import FuserConfig
-from fuser.model import FusionModel
+from fuser.model import FusionModel, TickInput, TickResult
 
-__all__ = ["FusionLoop"]
+__all__ = ["FusionLoop", "estimate_of", "vehicle_of"]
+
+
+def vehicle_of(source: SourceId) -> tuple:
+    """The vehicle a sample comes from: its MAVLink system id (any component, any instance); on a CAN bus
+    every node is part of the one vehicle."""
+    return (source.transport,) if source.transport == "dronecan" else (source.transport, source.system)
 
 
 _Pending = tuple[int, int, Sample]
@@ -48,6 +68,9 @@ class FusionLoop:
         self._seq = 0
         self._next_tick: int | None = None
         self._last_tick: int | None = None
+        self.reference_imu: SourceId | None = None
+        """The first IMU stream to arrive: the estimates' ``sensor_t_ns`` is on its clock, its vehicle is fused."""
+        self._latest_diagnostics: dict[str, dict[str, Any]] = {}
 
     @property
     def next_due_ns(self) -> int | None:
@@ -56,6 +79,12 @@ class FusionLoop:
 
     def push(self, sample: Sample, receive_ns: int) -> None:
         """Hand a sample to the loop; it is fused by the tick that covers its time."""
+        if isinstance(sample, (ImuSample, AttitudeSample)):
+            if self.reference_imu is None and isinstance(sample, ImuSample):
+                self.reference_imu = sample.source
+            elif self.reference_imu is not None and vehicle_of(sample.source) != vehicle_of(self.reference_imu):
+                self.counters["other_vehicle"] += 1
+                return
         key = (sample.source, type(sample))
         offset = min(receive_ns - sample.t_ns, self._offsets.get(key, receive_ns - sample.t_ns))
         self._offsets[key] = offset
@@ -89,6 +118,10 @@ class FusionLoop:
             return []
         return self.advance(max(p[0] for p in self._pending) + self.period_ns + self.latency_ns - 1)
 
+    def diagnostics(self) -> dict[str, dict[str, Any]]:
+        """The latest diagnostic of each measurement update (with its tick time ``t_ns``), for the status."""
+        return dict(self._latest_diagnostics)
+
     def _tick(self, tick_ns: int) -> Estimate:
         self._pending.sort()
         split = bisect_right(self._pending, (tick_ns, math.inf))  # every sample placed at or before the tick
@@ -96,9 +129,26 @@ class FusionLoop:
         dt = self.period_ns if self._last_tick is None else tick_ns - self._last_tick
         self._last_tick = tick_ns
         self.counters["ticks"] += 1
-        estimate = self.model.step([p[2] for p in due], dt, tick_ns)
-        estimate.counters.update(self.counters)
-        imu_offset = next((off for (_, kind), off in self._offsets.items() if kind is ImuSample), None)
-        if imu_offset is not None:
-            estimate = dataclasses.replace(estimate, sensor_t_ns=tick_ns - imu_offset)
+        result = self.model.step(TickInput(tick_ns, dt, [p[2] for p in due], [p[0] for p in due]))
+        offset = None if self.reference_imu is None else self._offsets[(self.reference_imu, ImuSample)]
+        estimate = estimate_of(tick_ns, result, {**result.counters, **self.counters}, None if offset is None else tick_ns - offset)
+        for d in estimate.diagnostics:
+            self._latest_diagnostics[d["update"]] = {"t_ns": tick_ns, **d}
         return estimate
+
+
+def estimate_of(t_ns: int, result: TickResult, counters: Mapping[str, int], sensor_t_ns: int | None) -> Estimate:
+    """The wire estimate of one tick: the published distribution's mode, parameters and summaries."""
+    state = result.published
+    q = tuple(state.mode.tolist())
+    return Estimate(
+        t_ns=t_ns,
+        q_wxyz=q,  # type: ignore[arg-type]
+        M=tuple(map(tuple, state.M.tolist())),  # type: ignore[arg-type]
+        Z=tuple(state.Z.tolist()),  # type: ignore[arg-type]
+        uncertainty_deg=result.uncertainty_deg,
+        euler_deg=tuple(math.degrees(a) for a in euler_from_quaternion(q)),  # type: ignore[arg-type]
+        counters=dict(counters),
+        sensor_t_ns=sensor_t_ns,
+        diagnostics=tuple(d.to_dict() for d in result.diagnostics),
+    )

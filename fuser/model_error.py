@@ -6,7 +6,7 @@ distortion, accelerometer bias and misalignment, gyro scale and
 misalignment, time-stamp and synchronisation errors) make it too sure. The
 published state is the filter's composed with an independent world-frame
 rotation error whose size is set per tick from what the fuser observes
-(:class:`ModelError`), a consider term: the filter's own state and gains are
+(:func:`model_error_variances`), a consider term: the filter's own state and gains are
 unchanged.
 
 Measured on BROAD (Laidig et al., Data 2021, CC-BY-4.0; see
@@ -23,14 +23,15 @@ so they are not used.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from core import quaternion as quat
 from core.bingham import Bingham
-from fuser.config import FuserConfig
+from fuser.config import ModelErrorSettings
 
-__all__ = ["ModelError", "model_error_variances", "widened_concentrations", "with_model_error"]
+__all__ = ["ModelErrorState", "model_error_variances", "observe_rate", "published", "widened_concentrations", "with_model_error"]
 
 _DOWN_PURE = np.array([0.0, 0.0, 0.0, 1.0])  # world down (NED z) as a pure quaternion
 
@@ -67,56 +68,57 @@ def with_model_error(state: Bingham, tilt_variance: float, heading_variance: flo
     return state.with_concentrations(widened_concentrations(state.M, state.Z, tilt_variance, heading_variance))
 
 
-def model_error_variances(config: FuserConfig, rate_sq: float | np.ndarray) -> tuple[float | np.ndarray, float | np.ndarray]:
-    """Per-axis angle variances (rad^2), tilt and heading, of :class:`ModelError` at a mean squared
-    rotation rate ``rate_sq`` ((rad/s)^2; a scalar or an array)."""
-    rate = (config.rate_model_error_s**2) * rate_sq
-    heading_floor = math.radians(config.heading_model_error_deg) ** 2 if config.use_mag else 0.0
-    return math.radians(config.tilt_model_error_deg) ** 2 + rate, heading_floor + rate
+@dataclass(frozen=True, slots=True)
+class ModelErrorState:
+    """The recent rotation rate the rate term scales with."""
 
-
-class ModelError:
-    """Per-tick size of the model error, from the conditions the filter observes.
-
-    Two terms, added as variances (independent causes):
-
-    * a **floor** (``tilt_model_error_deg``, ``heading_model_error_deg``):
-      accelerometer bias and misalignment, the reference field's local
-      distortion; the heading floor only with a magnetometer;
-    * a **rotation-rate term** ``rate_model_error_s * rate`` on every axis,
-      ``rate`` the RMS of the bias-corrected rotation rate low-passed over
-      the tilt correction time ``accel_lowpass_s``. Any error proportional to
-      the rotation rate lands here: a time-stamp or synchronisation error
-      ``dt`` turns the attitude by ``rate * dt`` along the rotation axis; a
-      gyro scale or misalignment error ``s`` builds up ``s * rate * T`` over the
-      time ``T`` the corrections need to remove it. The constant is thus a time
-      (``dt + s T``); the corrections act over ``accel_lowpass_s``, so that is
-      the window of the rate that matters. The filter's own process noise
-      counts scale error only as white noise per tick, which its
-      corrections average away, so it does not see this.
-    """
-
-    def __init__(self, config: FuserConfig) -> None:
-        self.config = config
-        self._rate_sq = 0.0  # low-passed squared rotation rate, (rad/s)^2
-
-    def observe_rate(self, rate_rad_s: float, dt: float) -> None:
-        """One tick's bias-corrected rotation rate (rad/s) over ``dt`` seconds."""
-        a = min(1.0, dt / self.config.accel_lowpass_s) if self.config.accel_lowpass_s > 0 else 1.0
-        self._rate_sq += a * (rate_rad_s * rate_rad_s - self._rate_sq)
+    rate_sq: float = 0.0
+    """Low-passed squared bias-corrected rotation rate, (rad/s)^2."""
 
     @property
     def recent_rate_rad_s(self) -> float:
-        """RMS of the bias-corrected rotation rate over the last ``accel_lowpass_s`` (rad/s)."""
-        return math.sqrt(self._rate_sq)
+        """RMS of the bias-corrected rotation rate over the low-pass window (rad/s)."""
+        return math.sqrt(self.rate_sq)
 
-    def variances(self) -> tuple[float, float]:
-        """Per-axis angle variances (rad^2): tilt (horizontal axes) and heading (about down)."""
-        return model_error_variances(self.config, self._rate_sq)
 
-    def apply(self, state: Bingham) -> Bingham:
-        """The published state: ``state`` with this tick's model error (:func:`with_model_error`)."""
-        tilt, heading = self.variances()
-        if tilt == 0.0 and heading == 0.0:
-            return state
-        return with_model_error(state, tilt, heading)
+def observe_rate(state: ModelErrorState, rate_rad_s: float, dt_s: float, window_s: float) -> ModelErrorState:
+    """``state`` after one tick's bias-corrected rotation rate over ``dt_s``, low-passed over ``window_s``
+    (the tilt correction time ``fuser.accel.lowpass_s``: the window of the rate that matters, see below)."""
+    a = min(1.0, dt_s / window_s)
+    return ModelErrorState(state.rate_sq + a * (rate_rad_s * rate_rad_s - state.rate_sq))
+
+
+def model_error_variances(
+    params: ModelErrorSettings, rate_sq: float | np.ndarray, heading_floor: bool
+) -> tuple[float | np.ndarray, float | np.ndarray]:
+    """Per-axis angle variances (rad^2), tilt and heading, at a mean squared rotation rate ``rate_sq``
+    ((rad/s)^2; a scalar or an array); the heading floor only with a magnetometer (``heading_floor``).
+
+    Two terms, added as variances (independent causes):
+
+    * a **floor** (``tilt_deg``, ``heading_deg``): accelerometer bias and
+      misalignment, the reference field's local distortion;
+    * a **rotation-rate term** ``rate_s * rate`` on every axis, ``rate`` the
+      RMS of the bias-corrected rotation rate low-passed over the tilt
+      correction time (:func:`observe_rate`). Any error proportional to the
+      rotation rate lands here: a time-stamp or synchronisation error ``dt``
+      turns the attitude by ``rate * dt`` along the rotation axis; a gyro
+      scale or misalignment error ``s`` builds up ``s * rate * T`` over the
+      time ``T`` the corrections need to remove it. The constant is thus a
+      time (``dt + s T``). The filter's own process noise counts scale error
+      only as white noise per tick, which its corrections average away, so it
+      does not see this.
+    """
+    rate = (params.rate_s**2) * rate_sq
+    floor = math.radians(params.heading_deg) ** 2 if heading_floor else 0.0
+    return math.radians(params.tilt_deg) ** 2 + rate, floor + rate
+
+
+def published(params: ModelErrorSettings, state: Bingham, rate_sq: float, heading_floor: bool, isotropic_rad2: float = 0.0) -> Bingham:
+    """The published state: ``state`` with the model error at ``rate_sq`` (:func:`with_model_error`) and a further
+    independent error of per-axis variance ``isotropic_rad2`` on every axis (the held gyro rate's, for one)."""
+    tilt, heading = model_error_variances(params, rate_sq, heading_floor)
+    tilt, heading = tilt + isotropic_rad2, heading + isotropic_rad2
+    if tilt == 0.0 and heading == 0.0:
+        return state
+    return with_model_error(state, tilt, heading)

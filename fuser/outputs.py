@@ -64,8 +64,8 @@ def open_outputs(stack: ExitStack, config: FuserConfig, args: argparse.Namespace
         from fuser.ros2 import Ros2Publisher
 
         s = config.ros2
-        if s.connect_to_router and not getattr(args, "no_zenoh", False) and any(_port(e) == _port(s.router_endpoint) for e in config.zenoh_listen):
-            print(f"warning: the fuser's own zenoh peer listens on {', '.join(config.zenoh_listen)}, the ROS 2 router's port "
+        if s.connect_to_router and not getattr(args, "no_zenoh", False) and any(_port(e) == _port(s.router_endpoint) for e in config.zenoh.listen):
+            print(f"warning: the fuser's own zenoh peer listens on {', '.join(config.zenoh.listen)}, the ROS 2 router's port "
                   f"({s.router_endpoint}): move it (--zenoh-listen tcp/127.0.0.1:7448) or pass --no-zenoh", file=sys.stderr)
         ros2 = Ros2Publisher(s)
         stack.callback(ros2.close)

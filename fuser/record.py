@@ -138,6 +138,23 @@ ESTIMATE = _obj(
     },
 )
 
+_NUM_OR_NULL = {"type": ["number", "null"]}
+DIAGNOSTICS = _obj(
+    "bingham_fuser.Diagnostics",
+    "What each measurement update did in one tick (fuser/model/diagnostics.py)",
+    {
+        "t_ns": {"type": "integer", "description": "tick time, ns"},
+        "updates": {"type": "array", "items": _obj("update", "one update's outcome", {
+            "update": {"type": "string", "description": "gravity, heading or attitude"},
+            "outcome": {"enum": ["fused", "gated", "reanchored"]},
+            "reason": {"type": "string", "description": "why gated: norm, dip, innovation, before_tilt, ...; empty otherwise"},
+            "innovation_deg": {**_NUM_OR_NULL, "description": "angle between measurement and prediction, degrees"},
+            "sigma_deg": {**_NUM_OR_NULL, "description": "measurement sigma used, degrees"},
+            "test_ratio": {**_NUM_OR_NULL, "description": "(innovation / gate)^2: above 1 outside the gate"},
+        })},
+    },
+)
+
 # topic -> schema; channel ids follow this order (registration order).
 CHANNELS: dict[str, dict[str, Any]] = {
     "/input/imu": _input_schema(
@@ -172,6 +189,7 @@ CHANNELS: dict[str, dict[str, Any]] = {
     "/truth/pose": POSE_IN_FRAME,
     "/status": {"title": "bingham_fuser.Status", "description": "health and counters", "type": "object"},
     "/tf": FRAME_TRANSFORMS,
+    "/diagnostics": DIAGNOSTICS,
 }
 
 
@@ -304,14 +322,17 @@ class McapRecorder:
             self.write_message(topic, receive_ns, sample.t_ns, data)
 
     def write_estimate(self, est: Estimate) -> None:
-        """An estimate on ``/estimate`` (full), ``/pose`` and ``/tf`` (Foxglove), at its tick time."""
+        """An estimate on ``/estimate`` (full), ``/pose`` and ``/tf`` (Foxglove), and its tick's update diagnostics
+        on ``/diagnostics`` (every tick that ran an update), at its tick time."""
         full = self._encode("/estimate", est.to_dict())
         pose = self._encode("/pose", pose_in_frame(est.t_ns, est.q_wxyz))
         tf = self._encode("/tf", frame_transforms(est.t_ns, BODY_FRAME, est.q_wxyz))
-        # one estimate, one verdict: its Foxglove views are written only with the estimate itself
+        # one estimate, one verdict: its Foxglove views and diagnostics are written only with the estimate itself
         if full is not None and pose is not None and tf is not None and self.write_message("/estimate", est.t_ns, est.t_ns, full):
             self.write_message("/pose", est.t_ns, est.t_ns, pose)
             self.write_message("/tf", est.t_ns, est.t_ns, tf)
+            if est.diagnostics:
+                self.write_message("/diagnostics", est.t_ns, est.t_ns, est.diagnostics_json())
 
     def write_truth(self, t_ns: int, q_wxyz: Quat, log_time_ns: int | None = None) -> None:
         """The true attitude (simulator, imported logs) on ``/truth/pose``, and its own body frame on ``/tf``.

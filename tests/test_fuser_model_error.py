@@ -6,14 +6,11 @@ import numpy as np
 
 from core import quaternion as quat
 from core.bingham import Bingham
-from drivers.samples import ImuSample, SourceId
-from fuser.config import FuserConfig
-from fuser.model import GRAVITY_M_S2, FusionModel
-from fuser.model_error import ModelError, widened_concentrations, with_model_error
-
-SRC = SourceId("sim", 1, 1, 0)
-FIELD = np.array([0.21, 0.0, 0.43])
-TICK = 10_000_000
+from drivers.samples import ImuSample
+from fuser.config import FuserConfig, ModelErrorSettings
+from fuser.model import FusionModel
+from fuser.model_error import ModelErrorState, model_error_variances, observe_rate, widened_concentrations, with_model_error
+from fusion_inputs import FIELD, GRAVITY_M_S2, SRC, TICK, tick
 
 
 def spin(model: FusionModel, rate_rad_s: float, seconds: float) -> list:
@@ -27,32 +24,32 @@ def spin(model: FusionModel, rate_rad_s: float, seconds: float) -> list:
             f = quat.rotate(quat.conjugate(q), [0.0, 0.0, -GRAVITY_M_S2])
             m = quat.rotate(quat.conjugate(q), FIELD)
             samples.append(ImuSample(t_ns, (0.0, 0.0, rate_rad_s), tuple(f), tuple(m), SRC))
-        out.append(model.step(samples, TICK, (k + 1) * TICK))
+        out.append(model.step(tick(samples, (k + 1) * TICK)))
     return out
 
 
 def test_rate_term_settles_to_the_configured_time_times_the_rate():
-    cfg = FuserConfig(tilt_model_error_deg=0.5, heading_model_error_deg=1.0, rate_model_error_s=0.004)
-    me = ModelError(cfg)
-    assert me.variances() == (math.radians(0.5) ** 2, math.radians(1.0) ** 2)  # at rest: the floors
-    for _ in range(3000):  # 30 s = 10 low-pass time constants at 5 rad/s
-        me.observe_rate(5.0, 0.01)
-    tilt, heading = me.variances()
+    params = ModelErrorSettings(tilt_deg=0.5, heading_deg=1.0, rate_s=0.004)
+    me = ModelErrorState()
+    assert model_error_variances(params, me.rate_sq, True) == (math.radians(0.5) ** 2, math.radians(1.0) ** 2)  # at rest: the floors
+    for _ in range(3000):  # 30 s = 10 low-pass time constants of 3 s at 5 rad/s
+        me = observe_rate(me, 5.0, 0.01, 3.0)
+    tilt, heading = model_error_variances(params, me.rate_sq, True)
     assert math.isclose(tilt, math.radians(0.5) ** 2 + (0.004 * 5.0) ** 2, rel_tol=1e-3)
     assert math.isclose(heading - tilt, math.radians(1.0) ** 2 - math.radians(0.5) ** 2, rel_tol=1e-9)
-    me.observe_rate(1.0, 0.0)  # a zero-length tick changes nothing and makes no NaN
-    assert me.variances() == (tilt, heading)
+    me = observe_rate(me, 1.0, 0.0, 3.0)  # a zero-length tick changes nothing and makes no NaN
+    assert model_error_variances(params, me.rate_sq, True) == (tilt, heading)
 
 
 def test_heading_floor_needs_a_magnetometer():
-    me = ModelError(FuserConfig(use_mag=False, heading_model_error_deg=2.0, tilt_model_error_deg=0.0))
-    assert me.variances() == (0.0, 0.0)
+    params = ModelErrorSettings(heading_deg=2.0, tilt_deg=0.0)
+    assert model_error_variances(params, 0.0, heading_floor=False) == (0.0, 0.0)
 
 
 def test_published_uncertainty_grows_with_the_rotation_rate_and_the_estimate_is_unchanged():
-    cfg = FuserConfig(rate_model_error_s=0.004)
+    cfg = FuserConfig(model_error=ModelErrorSettings(rate_s=0.004))
     fast = spin(FusionModel(cfg), math.radians(400.0), 8.0)
-    flat = spin(FusionModel(cfg.replace(rate_model_error_s=0.0)), math.radians(400.0), 8.0)
+    flat = spin(FusionModel(cfg.replace(model_error={"rate_s": 0.0})), math.radians(400.0), 8.0)
     slow = spin(FusionModel(cfg), math.radians(20.0), 8.0)
     # 4 ms at 400 deg/s is 1.6 deg per axis once the 3-s low-pass has settled: on three axes it adds
     # 3 * 1.6^2 deg^2 to the squared RMS angle

@@ -28,7 +28,7 @@ LOGS = Path(__file__).resolve().parent.parent / "logs"
 SIM_LOGS = sorted(LOGS.glob("sim_*.mcap"))
 
 # RMS error bounds after the first 5 s (degrees), above the worst of seeds 0, 3, 7 (README, "Accuracy"):
-# hover 1.97-2.30, aggressive 10.6-11.0, magnet 2.16-2.95, dropout 6.17-6.62.
+# hover 1.76-2.08, aggressive 10.3-11.2, magnet 1.72-2.59, dropout 3.31-3.94.
 BOUNDS = {"hover": 2.6, "aggressive": 12.0, "magnet": 3.3, "dropout": 7.2}
 # Reported uncertainty against actual error: within 2x in hover (1.96: the heading floor fitted on BROAD's
 # distorted fields is pessimistic for the simulator's exact one), with the magnet (1.79) and through the

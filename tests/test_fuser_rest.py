@@ -8,14 +8,14 @@ import pytest
 from core import quaternion as quat
 from core.bingham import Bingham
 from core.filters import rms_angle_deg
-from drivers.samples import ImuSample, SourceId
-from fuser.config import FuserConfig
-from fuser.model import GRAVITY_M_S2, FusionModel
+from drivers.samples import ImuSample
+from fuser.config import BiasSettings, FuserConfig, ModelErrorSettings, RestSettings
+from fuser.model import FusionModel
+from fuser.model.gravity import tilt_time_constant_s
 from fuser.model_error import with_model_error
+from fusion_inputs import FIELD, GRAVITY_M_S2, SRC, TICK, tick
 
-SRC = SourceId("sim", 1, 1, 0)
-FIELD = np.array([0.21, 0.0, 0.43])
-TICK = 10_000_000
+NO_FEEDBACK = BiasSettings(feedback_enabled=False)
 
 
 def still(model: FusionModel, q: np.ndarray, seconds: float, gyro, start_tick: int = 0, seed: int = 0) -> int:
@@ -30,31 +30,31 @@ def still(model: FusionModel, q: np.ndarray, seconds: float, gyro, start_tick: i
                       tuple(f + 0.03 * rng.standard_normal(3)), tuple(m), SRC)
             for j in range(1, 5)
         ]
-        model.step(samples, TICK, (k + 1) * TICK)
+        model.step(tick(samples, (k + 1) * TICK))
     return k + 1
 
 
 def test_rest_detection_recovers_a_known_bias_without_feedback():
     """Integral feedback off: only the rest-phase estimate can find the bias, and it does within seconds."""
     bias = np.array([0.01, -0.02, 0.015])
-    model = FusionModel(FuserConfig(bias_time_constant_s=0))
+    model = FusionModel(FuserConfig(bias=NO_FEEDBACK))
     still(model, quat.from_rotvec([0.1, -0.1, 0.4]), 4.0, bias)
-    assert model.at_rest and model.counters["rest_ticks"] > 200
-    np.testing.assert_allclose(model.gyro_bias, bias, atol=5e-4)
-    assert math.sqrt(model.bias_variance) < 0.001
+    assert model.state.rest.at_rest and model.counters["rest_ticks"] > 200
+    np.testing.assert_allclose(model.state.bias.estimate_rad_s, bias, atol=5e-4)
+    assert math.sqrt(model.state.bias.variance_rad2_s2) < 0.001
 
 
 def test_without_rest_detection_the_bias_is_not_found():
     bias = np.array([0.01, -0.02, 0.015])
-    model = FusionModel(FuserConfig(bias_time_constant_s=0, rest_min_s=0))
+    model = FusionModel(FuserConfig(bias=NO_FEEDBACK, rest=RestSettings(enabled=False)))
     still(model, quat.IDENTITY, 4.0, bias)
-    assert not model.at_rest and np.all(model.gyro_bias == 0.0)
+    assert not model.state.rest.at_rest and np.all(model.state.bias.estimate_rad_s == 0.0)
 
 
 @pytest.mark.parametrize("motion", ["steady turn", "oscillation"])
 def test_rest_detector_does_not_fire_in_motion(motion):
     """A slow steady turn (3 deg/s, above the 2 deg/s bias clip) or a wobble is not rest: the bias stays put."""
-    model = FusionModel(FuserConfig(bias_time_constant_s=0))
+    model = FusionModel(FuserConfig(bias=NO_FEEDBACK))
     q = quat.IDENTITY.copy()
     for k in range(600):
         t = k * 0.01
@@ -64,17 +64,18 @@ def test_rest_detector_does_not_fire_in_motion(motion):
             q = quat.multiply(q, quat.from_rotvec(rate * 0.0025))
             f = quat.rotate(quat.conjugate(q), [0.0, 0.0, -GRAVITY_M_S2])
             samples.append(ImuSample(k * TICK + j * 2_500_000, tuple(rate), tuple(f), tuple(quat.rotate(quat.conjugate(q), FIELD)), SRC))
-        model.step(samples, TICK, (k + 1) * TICK)
+        model.step(tick(samples, (k + 1) * TICK))
     assert model.counters["rest_ticks"] == 0
-    assert np.all(model.gyro_bias == 0.0)
+    assert np.all(model.state.bias.estimate_rad_s == 0.0)
 
 
 def test_tilt_time_constant_is_short_until_the_bias_is_learnt():
-    model = FusionModel(FuserConfig())
-    cold = model._tilt_time_constant()
-    assert cold < 1.0  # 0.5 deg / 0.015 rad/s: a fast tilt correction while the bias is unknown
+    cfg = FuserConfig()
+    model = FusionModel(cfg)
+    tau = lambda: tilt_time_constant_s(cfg.accel, cfg.bias, model.state.bias.variance_rad2_s2)  # noqa: E731
+    assert tau() == pytest.approx(math.radians(0.5) / 0.015)  # tilt_bias_error / sigma_b: fast while the bias is unknown
     still(model, quat.IDENTITY, 4.0, (0.01, 0.0, -0.01))
-    assert model._tilt_time_constant() == pytest.approx(model.config.accel_lowpass_s)
+    assert tau() == pytest.approx(cfg.accel.lowpass_s)
 
 
 def test_model_error_matches_composition_with_isotropic_noise():
@@ -98,12 +99,12 @@ def test_model_error_widens_heading_and_tilt_separately_and_keeps_unknown_axes_u
 
 
 def test_published_uncertainty_includes_the_configured_model_error():
-    plain = FusionModel(FuserConfig(heading_model_error_deg=0.0, tilt_model_error_deg=0.0))
-    wide = FusionModel(FuserConfig(heading_model_error_deg=3.0, tilt_model_error_deg=1.0))
+    plain = FusionModel(FuserConfig(model_error=ModelErrorSettings(heading_deg=0.0, tilt_deg=0.0)))
+    wide = FusionModel(FuserConfig(model_error=ModelErrorSettings(heading_deg=3.0, tilt_deg=1.0)))
     for model in (plain, wide):
         still(model, quat.IDENTITY, 3.0, (0.0, 0.0, 0.0))
-    a = plain.step([], TICK, 301 * TICK)
-    b = wide.step([], TICK, 301 * TICK)
+    a = plain.step(tick([], 301 * TICK))
+    b = wide.step(tick([], 301 * TICK))
     # independent errors add in quadrature: heading 3 deg and tilt 1 deg on each of two axes
     assert b.uncertainty_deg**2 - a.uncertainty_deg**2 == pytest.approx(3.0**2 + 2 * 1.0**2, rel=0.15)
     assert quat.angular_distance(a.q_wxyz, b.q_wxyz) < 1e-9  # the estimate itself is unchanged

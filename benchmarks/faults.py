@@ -1,0 +1,63 @@
+#!/usr/bin/env python3
+"""Faults the filter admits: a saturated gyro, a rogue second IMU, an autopilot attitude that jumps.
+
+    python benchmarks/faults.py [--no-write]
+
+The flights and their scoring are ``tests/fault_flights.py`` (the simulator's hover, the fault from 4 s,
+scored against the simulator's truth until 12 s); seeds 0-3 each. Per fault: the RMS error before it, the
+largest and RMS error while it lasts, the mean reported uncertainty then, the seconds from its end until the
+error stays under 5 deg, and the readings counted as faulty. Writes the table into benchmarks/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
+
+from broad import RESULTS, model_revision, write_section  # noqa: E402
+from fault_flights import FAULTS  # noqa: E402
+
+COUNTERS = {"saturation": "gyro_saturated", "rogue_imu": "imu_disagree", "attitude_jump": "attitude_gated_jump"}
+SEEDS = (0, 1, 2, 3)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--no-write", action="store_true", help="do not update benchmarks/RESULTS.md")
+    args = ap.parse_args(argv)
+    lines = [
+        "| fault | error before | error while it lasts: max / RMS | reported uncertainty then (before) | recovered to < 5 deg after | counted |",
+        "|---|---|---|---|---|---|",
+    ]
+    for name, flight in FAULTS.items():
+        runs = [flight(seed=seed) for seed in SEEDS]
+        s = [r.summary() for r in runs]
+        rng = lambda key, fmt="{:.1f}": "–".join(fmt.format(f(v[key] for v in s)) for f in (min, max))  # noqa: E731
+        counted = [r.counters.get(COUNTERS[name], 0) for r in runs]
+        lines.append(f"| {runs[0].name} ({runs[0].end_s - runs[0].start_s:.0f} s) | {rng('error_before_deg')}° | "
+                     f"{rng('error_during_max_deg')}° / {rng('error_during_rms_deg')}° | {rng('uncertainty_during_deg')}° "
+                     f"({rng('uncertainty_before_deg')}°) | {rng('recovery_s')} s | {min(counted)}–{max(counted)} `{COUNTERS[name]}` |")
+        print(lines[-1], flush=True)
+    lines += ["", f"Seeds {', '.join(map(str, SEEDS))} (ranges over them); model at git {model_revision()}. "
+                  "Before these faults were handled (git 14a9397, seed 0, the same flights): a saturated gyro left the estimate "
+                  "176° off reporting 7°; a rogue IMU 64° off reporting 6°, not recovered by the end; a jumping attitude source "
+                  "was followed, 30° off reporting 6°. Not met: in a sustained banked turn (the same saturation at 12 s of the "
+                  "programme) the estimate re-converges without GNSS to the accelerometer's tilt, which in a coordinated turn is "
+                  "the bank: 18° off while reporting 4°, 15.6 s to recover; the velocity-aided gravity update is what fixes it."]
+    if not args.no_write:
+        write_section(RESULTS, "faults", [f"## Faults the filter admits ({time.strftime('%Y-%m-%d')})", "",
+                                          "Simulated hover, fault from 4 s, scored against the simulator's truth "
+                                          "(`python benchmarks/faults.py`; flights in `tests/fault_flights.py`).", "", *lines])
+    return 0
+
+
+if __name__ == "__main__":
+    np.seterr(all="ignore")
+    sys.exit(main())

@@ -1,0 +1,27 @@
+"""The fusion model: turns one tick's samples into Bingham filter operations.
+
+The state starts uniform: no prior knowledge of the attitude is needed. Per
+tick (:meth:`FusionModel.step`, in :mod:`fuser.model.fusion`): each IMU's gyro
+is integrated and the attitude predicted in closed form; gravity, the
+magnetometer's heading and an autopilot's attitude are fused as exact
+Bingham likelihoods; the gyro bias, a point estimate beside the Bingham, is
+learnt at rest directly and in motion by integral feedback (VQF: D. Laidig,
+T. Seel, "VQF: Highly accurate IMU orientation estimation with bias
+estimation and magnetic disturbance rejection", Information Fusion 91, 2023).
+
+One module per job: :mod:`~fuser.model.imu_check` (IMUs against each other),
+:mod:`~fuser.model.propagation` (gyro integration and prediction), :mod:`~fuser.model.gravity`, :mod:`~fuser.model.heading`,
+:mod:`~fuser.model.attitude` (the updates), :mod:`~fuser.model.gate` (their
+innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
+:mod:`~fuser.model.body_frame` (readings in the state's body frame),
+:mod:`~fuser.model.state` (the persistent state), :mod:`~fuser.model.tick`
+(what goes in and out of a tick), :mod:`~fuser.model.diagnostics` (what each
+update did).
+"""
+
+from fuser.model.diagnostics import UpdateDiagnostic
+from fuser.model.fusion import FusionModel
+from fuser.model.state import FilterState
+from fuser.model.tick import TickInput, TickResult
+
+__all__ = ["FilterState", "FusionModel", "TickInput", "TickResult", "UpdateDiagnostic"]

@@ -1,0 +1,196 @@
+"""One tick of the fusion model, from the tick's samples to the published attitude distribution.
+
+Read :meth:`FusionModel.step` top to bottom: every value it uses is either
+an argument, a setting, the persistent :class:`~fuser.model.state.FilterState`
+or a local computed above it.
+
+0. **Check** (:mod:`~fuser.model.imu_check`): the vehicle's IMUs against each
+   other; a sample that disagrees is kept out of everything below.
+1. **Predict** (:mod:`~fuser.model.propagation`): each IMU's gyro
+   integrated, the attitude rotated and composed with the process noise in
+   closed form (progressive paper, Alg. 1).
+2. **Update**: gravity (:mod:`~fuser.model.gravity`), heading
+   (:mod:`~fuser.model.heading`) and the autopilot's attitude
+   (:mod:`~fuser.model.attitude`), each gated against the prediction. Their
+   likelihood exponents add, so the tick's product is one Bingham product
+   and one eigendecomposition (QBF paper, sec. 5, eq. 3); only the first tilt
+   ever measured is applied at once, for the heading that follows it.
+3. **Bias** (:mod:`~fuser.model.rest`, :mod:`~fuser.model.bias`): measured at
+   rest, learnt from the tick's correction in slow motion.
+4. **Publish**: the posterior widened by the model error
+   (:mod:`fuser.model_error`), by the error of a gyro rate held since the
+   last sample, and while an IMU is kept out.
+
+The state is at the tick's end: the gyro carries it over the whole tick, and
+every reading is turned into the body frame of that instant.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+import numpy as np
+
+from core.bingham import Bingham
+from core.filters import rms_angle_deg
+from core.normalization import Method
+from drivers.samples import AttitudeSample, ImuSample, MagSample
+from fuser import model_error
+from fuser.config import FuserConfig
+from fuser.model import bias as bias_feedback
+from fuser.model.attitude import attitude_in_use, update_attitude
+from fuser.model.body_frame import lags_s, mean_in_state_body
+from fuser.model.diagnostics import UpdateDiagnostic, counter_name
+from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
+from fuser.model.heading import FieldReference, heading_sigma_rad, update_heading
+from fuser.model.imu_check import check_imus
+from fuser.model.propagation import integrate_gyro, predict
+from fuser.model.rest import detect_rest, measure_bias
+from fuser.model.state import FilterState, GyroState, HeadingState, initial_state
+from fuser.model.tick import TickContext, TickInput, TickResult
+
+__all__ = ["FusionModel"]
+
+
+def _multiplied(belief: Bingham, exponent: np.ndarray) -> Bingham:
+    """``belief`` times the likelihoods whose exponents sum to ``exponent``."""
+    return belief.times_exponent(exponent) if exponent.any() else belief
+
+
+class FusionModel:
+    """Bingham attitude fusion of any number of IMUs, magnetometers and attitude sources.
+
+    ``config`` holds the parameters; :attr:`state` the persistent state (read,
+    set, :meth:`reset`); the field reference is a coefficient derived from
+    ``config`` once. :meth:`step` runs one tick.
+    """
+
+    def __init__(self, config: FuserConfig, method: Method = "saddlepoint") -> None:
+        self.config = config
+        self.method: Method = method
+        """Normalization constant behind every moment match (:mod:`core.normalization`)."""
+        self.counters: Counter[str] = Counter()
+        """Events so far: readings gated by reason, gyro gaps, rest ticks, ..."""
+        self._field = FieldReference.of(config.mag.field_ned_gauss)
+        self._state = initial_state(config)
+
+    @property
+    def state(self) -> FilterState:
+        """The persistent state after the last tick (an immutable value)."""
+        return self._state
+
+    @state.setter
+    def state(self, state: FilterState) -> None:
+        if not isinstance(state, FilterState):
+            raise TypeError(f"state must be a FilterState, got {type(state).__name__}")
+        self._state = state
+
+    def reset(self) -> None:
+        """Back to the start: uniform attitude, bias unknown."""
+        self._state = initial_state(self.config)
+
+    def step(self, tick: TickInput) -> TickResult:
+        """Fuse the samples of one tick (:class:`~fuser.model.tick.TickInput`)."""
+        cfg, s = self.config, self._state
+        dt = tick.dt_ns * 1e-9
+        placed = [x.t_ns for x in tick.samples] if tick.placed_ns is None else tick.placed_ns
+        imu = [(x, t) for x, t in zip(tick.samples, placed) if isinstance(x, ImuSample)]
+        events: list[str] = []
+
+        # 0. the vehicle's IMUs checked against each other: one that disagrees is kept out
+        imu_check, kept, disagreeing = check_imus(cfg.imu_check, s.imu_check, [x for x, _ in imu], [t for _, t in imu])
+        imu = [imu[i] for i in kept]
+        events += ["imu_disagree"] * disagreeing
+        imu_fault = imu_check.last_fault_ns is not None and tick.t_ns - imu_check.last_fault_ns <= max(cfg.imu_check.compare_within_s * 1e9, tick.dt_ns)
+        imu_samples, imu_placed = [x for x, _ in imu], [t for _, t in imu]
+
+        # 1. predict: the gyro over the whole tick, then the closed-form prediction
+        bias = bias_feedback.propagate(cfg.bias, s.bias, dt)
+        track, motion = integrate_gyro(cfg.gyro, s.gyro.track, imu_samples, imu_placed, tick.t_ns - tick.dt_ns, tick.t_ns)
+        events += ["gyro_gap"] * motion.gaps + ["gyro_saturated"] * motion.saturated_samples
+        if not imu:
+            events.append("no_gyro")
+        if motion.held:
+            events.append("gyro_held")
+        prediction = predict(cfg.gyro, cfg.bias, s.attitude, bias, motion, dt, self.method)
+        if prediction.rate_rad_s is None:
+            rate, error_state = s.gyro.rate_rad_s, s.model_error
+        else:
+            rate = prediction.rate_rad_s
+            error_state = model_error.observe_rate(s.model_error, rate, dt, cfg.accel.lowpass_s)
+        gravity = turn_frame(s.gravity, prediction.rotation, motion.gap_s + motion.saturated_s)
+        context = TickContext(dt, prediction.variance_rad2, rms_angle_deg(prediction.attitude, self.method))
+        predicted_q = prediction.attitude.mode
+        raw_rate = motion.raw_rate_rad_s
+        body_rate = None if raw_rate is None else raw_rate - bias.estimate_rad_s
+
+        # 2. updates, gated against the prediction; their exponents add up to one product
+        belief, exponent = prediction.attitude, np.zeros((4, 4))
+        diagnostics: list[UpdateDiagnostic] = []
+        rest, heading, accel_trusted = s.rest, s.heading, False
+        interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
+        if imu:
+            accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags_s(imu_placed, tick.t_ns), body_rate)
+            if cfg.rest.enabled and raw_rate is not None:
+                rest = detect_rest(cfg.rest, rest, raw_rate, accel, interval)
+                if rest.at_rest:
+                    events.append("rest_ticks")
+                    bias = measure_bias(cfg.rest, rest, bias, interval)
+            reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel,
+                                     tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2), predicted_q, interval)
+            gravity, accel_trusted = reading.state, reading.trusted
+            diagnostics.append(reading.diagnostic)
+            if reading.exponent is not None:
+                exponent = exponent + reading.exponent
+            if reading.apply_now:
+                belief, exponent = _multiplied(belief, exponent), np.zeros((4, 4))
+        mag = self._mag_in_state_body(tick, imu, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
+        if mag is not None:
+            since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
+            heading = HeadingState(heading.gated_s, tick.t_ns)
+            sigma = heading_sigma_rad(cfg.mag, cfg.bias, gravity.converged, context, bias.variance_rad2_s2, since)
+            h = update_heading(cfg.mag, cfg.updates, self._field, heading, gravity, context, mag, belief.mode, sigma)
+            heading = h.state
+            diagnostics.append(h.diagnostic)
+            if h.exponent is not None:
+                exponent = exponent + h.exponent
+        attitudes = [x for x in tick.samples if isinstance(x, AttitudeSample)]
+        attitude_source = s.attitude_source
+        if attitudes and attitude_in_use(cfg.attitude, track, tick.t_ns):
+            a = update_attitude(cfg.attitude, cfg.updates, attitude_source, attitudes, belief.mode,
+                                gravity.down_body if gravity.tilt_known else None, context)
+            attitude_source = a.state
+            for e in a.exponents:
+                exponent = exponent + e
+            diagnostics += a.diagnostics
+        elif attitudes:
+            events += ["attitude_unused"] * len(attitudes)
+        posterior = _multiplied(belief, exponent)
+
+        # 3. bias feedback from the tick's correction
+        if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, rate, context.prior_doubt_deg):
+            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, interval)
+
+        # 4. publish: widened by the model error, the error of a rate held since the last sample, and an IMU kept out
+        widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
+        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening)
+
+        self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
+                                  rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
+                                  model_error=error_state)
+        self.counters.update(events)
+        self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
+        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))
+
+    def _mag_in_state_body(self, tick: TickInput, imu: list[tuple[ImuSample, int]], body_rate: np.ndarray | None) -> np.ndarray | None:
+        """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body
+        frame), or None without one or with the magnetometer off."""
+        if not self.config.mag.enabled:
+            return None
+        mags: list = [x.mag_gauss for x in tick.samples if isinstance(x, MagSample)]
+        with_mag = [(x, t) for x, t in imu if x.mag_gauss is not None]
+        if with_mag:
+            mags.append(mean_in_state_body([x.mag_gauss for x, _ in with_mag], lags_s([t for _, t in with_mag], tick.t_ns), body_rate))
+        if not mags:
+            return None
+        return np.asarray(mags[0], dtype=float) if len(mags) == 1 else np.mean(mags, axis=0)

@@ -1,0 +1,96 @@
+"""The heading update: the magnetometer as a yaw-only measurement.
+
+The field is turned into the world frame by the current estimate and only
+its horizontal direction is compared with the reference's: a likelihood
+that informs the rotation about down and nothing else
+(:func:`core.observations.heading_exponent`; unscented paper, sec. IV-B,
+zero concentrations for the axes a measurement does not inform), so a
+magnet near the sensor cannot tilt the estimate. Readings whose norm or dip
+(against the measured gravity) depart from the reference are gated first
+(as VQF's magnetic disturbance detection does, by norm and dip).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from core import quaternion as quat
+from core.observations import heading_exponent
+from fuser.config import BiasSettings, MagSettings, UpdateSettings
+from fuser.model.diagnostics import UpdateDiagnostic
+from fuser.model.gate import innovation_gate
+from fuser.model.state import GravityState, HeadingState
+from fuser.model.tick import TickContext
+
+__all__ = ["FieldReference", "HeadingReading", "heading_sigma_rad", "update_heading"]
+
+
+@dataclass(frozen=True, slots=True)
+class FieldReference:
+    """Coefficients of the reference field, computed once from ``mag.field_ned_gauss``."""
+
+    norm_gauss: float
+    dip_rad: float
+    heading_rad: float
+
+    @classmethod
+    def of(cls, field_ned_gauss: tuple[float, float, float]) -> FieldReference:
+        field = np.asarray(field_ned_gauss, dtype=float)
+        norm = float(np.linalg.norm(field))
+        return cls(norm, math.asin(field[2] / norm), math.atan2(field[1], field[0]))
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingReading:
+    state: HeadingState
+    exponent: np.ndarray | None
+    diagnostic: UpdateDiagnostic
+
+
+def heading_sigma_rad(params: MagSettings, bias: BiasSettings, converged: bool, tick: TickContext, bias_variance_rad2_s2: float,
+                      interval_s: float) -> float:
+    """Sigma of a heading reading taken ``interval_s`` after the previous one.
+
+    ``sigma_rad`` until converged (a fast start); then the magnetometer's
+    correlated error counted once per correlation time,
+    ``error sqrt(correlation_s / T)`` for readings every ``T`` (a fixed sigma
+    counts errors that persist for seconds as independent and follows them),
+    but never slower than a correction time constant ``tau =
+    heading_bias_error / bias sigma`` (``sigma^2 = Q (tau/T)^2`` for the
+    process variance ``Q = q T / dt`` over ``T``, as for the tilt), so that a
+    poorly known bias is still held.
+    """
+    if not converged or interval_s <= 0.0:
+        return params.sigma_rad
+    correlated = math.radians(params.error_deg) * math.sqrt(max(params.correlation_s / interval_s, 1.0))
+    tau = math.radians(params.heading_bias_error_deg) / math.sqrt(max(bias_variance_rad2_s2, bias.min_variance_rad2_s2))
+    return min(correlated, math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau / interval_s)
+
+
+def update_heading(params: MagSettings, updates: UpdateSettings, reference: FieldReference, state: HeadingState, gravity: GravityState,
+                   tick: TickContext, mag_body_gauss: np.ndarray, current_q: np.ndarray, sigma_rad: float) -> HeadingReading:
+    """The heading update of one tick from the tick's mean field in the state's body frame, against the
+    current estimate ``current_q`` and the measured down in ``gravity``. ``state`` is the heading's with
+    this reading's time already noted."""
+    if not gravity.tilt_known:
+        return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "before_tilt"))
+    norm = math.sqrt(float(mag_body_gauss @ mag_body_gauss))
+    if abs(norm - reference.norm_gauss) > params.norm_gate_fraction * reference.norm_gauss:
+        return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "norm"))
+    # dip from the angle between the field and the measured gravity, both in the body frame,
+    # so that a wrong tilt estimate cannot lock the magnetometer out
+    dip = math.asin(max(-1.0, min(1.0, float(mag_body_gauss @ gravity.down_body) / norm)))
+    if abs(math.degrees(dip - reference.dip_rad)) > params.dip_gate_deg:
+        return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "dip"))
+    m_world = quat.rotate(current_q, mag_body_gauss)
+    error = math.remainder(reference.heading_rad - math.atan2(m_world[1], m_world[0]), 2.0 * math.pi)
+    verdict = innovation_gate(updates, state.gated_s, abs(error), max(sigma_rad, params.sigma_rad), tick.prior_doubt_deg, tick.dt_s)
+    diagnostic = UpdateDiagnostic.of("heading", verdict.outcome, "innovation" if verdict.outcome == "gated" else "",
+                                     abs(error), sigma_rad, verdict.test_ratio)
+    state = HeadingState(verdict.gated_s, state.last_reading_ns)
+    if verdict.outcome == "gated":
+        return HeadingReading(state, None, diagnostic)
+    return HeadingReading(state, heading_exponent(current_q, error, sigma_rad), diagnostic)

@@ -1,0 +1,130 @@
+"""The fusion model's persistent state: one immutable value, read, set and reset as a whole.
+
+After VQF's parameter / state / coefficient split (``VQFParams``,
+``VQFState``, ``VQFCoefficients`` in dlaidig/vqf): the parameters are the
+frozen :class:`fuser.config.FuserConfig`, the coefficients are derived from
+them once (:class:`fuser.model.heading.FieldReference`, the process-noise
+table), and everything a tick carries to the next is here. Each update
+module owns one part and returns a new one; nothing is changed in place, so
+a state read with :attr:`FusionModel.state <fuser.model.FusionModel.state>`
+stays valid after further ticks and can be set into another model.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+import numpy as np
+
+from core import quaternion as quat
+from core.bingham import Bingham
+from drivers.samples import Vec3
+from fuser.config import FuserConfig
+from fuser.model.imu_check import ImuCheckState
+from fuser.model_error import ModelErrorState
+
+__all__ = ["AttitudeState", "BiasState", "FilterState", "GravityState", "GyroState", "GyroTrack", "HeadingState", "RestState", "initial_state"]
+
+
+@dataclass(frozen=True, slots=True)
+class GyroTrack:
+    """The vehicle's gyro stream (all its IMUs) on the loop's timeline (:mod:`fuser.model.propagation`)."""
+
+    last_ns: int
+    """Time of the last gyro sample (ns, loop timeline)."""
+    last_rate_rad_s: Vec3
+    """Its raw rate (rad/s, bias not removed): the rate held until the next sample."""
+    covered_ns: int
+    """The attitude has been carried up to here (the last tick's end)."""
+    held_rad: Vec3
+    """Raw rotation the hold applied since ``last_ns``: taken back when the next sample closes the interval."""
+    interval_s: float | None = None
+    """Interval between samples, low-passed over ``gyro.rate_window_s`` (None before the second sample)."""
+    saturated: bool = False
+    """The last sample was saturated: the rate since it is unknown."""
+
+    def rate_hz(self, now_ns: int) -> float:
+        """The stream's measured rate at ``now_ns``: a stream that stops is slow."""
+        interval = max(self.interval_s or 0.0, (now_ns - self.last_ns) * 1e-9)
+        return 1.0 / interval if interval > 0.0 else math.inf
+
+
+@dataclass(frozen=True, slots=True)
+class GyroState:
+    track: GyroTrack | None = None
+    """None until the first gyro sample."""
+    rate_rad_s: float = 0.0
+    """Norm of the last known bias-corrected rate: the bias feedback learns only below its threshold."""
+    last_imu_tick_ns: int | None = None
+    """The last tick that held IMU samples: the gravity and rest updates count their readings per interval."""
+
+
+@dataclass(frozen=True, slots=True)
+class BiasState:
+    """The gyro bias estimate (rad/s, body FRD) and the variance of each axis ((rad/s)^2)."""
+
+    estimate_rad_s: np.ndarray
+    variance_rad2_s2: float
+
+
+@dataclass(frozen=True, slots=True)
+class RestState:
+    """Rest detector (VQF, rest detection): low-passed gyro and accelerometer, seconds still, and the verdict."""
+
+    gyro_lp_rad_s: np.ndarray | None = None
+    accel_lp_m_s2: np.ndarray | None = None
+    still_s: float = 0.0
+    at_rest: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class GravityState:
+    """The gravity update's memory: the low-passed specific force in the gyro-only strapdown frame."""
+
+    q_strapdown: np.ndarray = field(default_factory=lambda: quat.IDENTITY.copy())
+    """Gyro-only attitude (never corrected): the almost-inertial frame of the low-pass (VQF, inclination correction)."""
+    accel_lp_m_s2: np.ndarray | None = None
+    """Low-passed specific force in that frame."""
+    down_body: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    """Last measured direction of down in the body frame: the magnetometer's dip reference."""
+    converged: bool = False
+    """Once the state has converged the raw accelerometer is not trusted again (until a gyro gap breaks the frame)."""
+    tilt_known: bool = False
+    """A gravity reading has been fused: the heading may be measured."""
+    gated_s: float = 0.0
+    """Seconds of continuous gating by innovation (re-anchored after ``updates.reanchor_after_s``)."""
+
+
+@dataclass(frozen=True, slots=True)
+class HeadingState:
+    gated_s: float = 0.0
+    """Seconds of continuous gating by innovation."""
+    last_reading_ns: int | None = None
+    """Tick of the last magnetometer reading: the heading's correlated error is counted per interval."""
+
+
+@dataclass(frozen=True, slots=True)
+class AttitudeState:
+    gated_s: float = 0.0
+    """Seconds the autopilot's attitude has been kept out as a jump."""
+
+
+@dataclass(frozen=True, slots=True)
+class FilterState:
+    """Everything one tick hands to the next."""
+
+    attitude: Bingham
+    """The filter's Bingham over the attitude quaternion (body FRD -> world NED)."""
+    bias: BiasState
+    gyro: GyroState = GyroState()
+    rest: RestState = RestState()
+    gravity: GravityState = GravityState()
+    heading: HeadingState = HeadingState()
+    attitude_source: AttitudeState = AttitudeState()
+    imu_check: ImuCheckState = ImuCheckState()
+    model_error: ModelErrorState = ModelErrorState()
+
+
+def initial_state(config: FuserConfig) -> FilterState:
+    """The start: a uniform attitude (no prior knowledge needed), zero bias with its initial uncertainty."""
+    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2))

@@ -1,0 +1,113 @@
+"""IMU at any rate: the attitude is carried over the whole of every tick, whatever the IMU rate against the loop's.
+
+A yaw turn whose rate rises and falls smoothly, ``w(t) = w_max (1 - cos(2 pi t / T)) / 2`` for ``T``
+seconds, turns by exactly ``w_max T / 2`` (closed form). The IMU samples that rate at 25-400 Hz, the loop
+ticks at 50-400 Hz; the turn the estimate makes must be within 2% of the true one. The attitude is first
+fixed by an autopilot attitude (then no more is sent), the sensor is level and nothing but the gyro sees a
+rotation about down, so the turn is the gyro's alone.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from core import quaternion as quat
+from drivers.samples import AttitudeSample, ImuSample
+from fuser.config import AttitudeSettings, FuserConfig, MagSettings
+from fuser.loop import FusionLoop
+from fuser.model.propagation import integrate_gyro
+from fusion_inputs import GRAVITY_M_S2, SRC
+
+W_MAX_RAD_S = 1.0
+TURN_S = 2.0
+TRUE_TURN_RAD = W_MAX_RAD_S * TURN_S / 2.0
+START_S, SETTLE_S = 0.5, 0.3
+LINK_NS = 1_000_000
+BOOT_NS = 12_345_678_901
+"""The IMU's clock: its own boot time, not the loop's, and a sample phase that the turn does not start on."""
+PHASE = 0.37
+
+
+def _rate(t_s: float) -> float:
+    x = t_s - START_S
+    return 0.5 * W_MAX_RAD_S * (1.0 - math.cos(2.0 * math.pi * x / TURN_S)) if 0.0 <= x <= TURN_S else 0.0
+
+
+def _yaw_at(t_s: float) -> float:
+    """Closed form of the integral of ``_rate``."""
+    x = min(max(t_s - START_S, 0.0), TURN_S)
+    return 0.5 * W_MAX_RAD_S * (x - TURN_S / (2.0 * math.pi) * math.sin(2.0 * math.pi * x / TURN_S))
+
+
+def _turn(imu_hz: float, loop_hz: float) -> float:
+    """Yaw the estimate turned from the start of the turn to its end (rad)."""
+    loop = FusionLoop(FuserConfig(rate_hz=loop_hz, mag=MagSettings(enabled=False), attitude=AttitudeSettings(mode="always")))
+    level = (0.0, 0.0, -GRAVITY_M_S2)
+    events = []
+    n = int((START_S + TURN_S + SETTLE_S) * imu_hz)
+    for k in range(1, n + 1):
+        t = (k + PHASE) / imu_hz
+        t_ns = BOOT_NS + round(t * 1e9)
+        events.append((t_ns, ImuSample(t_ns, (0.0, 0.0, _rate(t)), level, None, SRC)))
+    for k in range(1, int(START_S * 50)):  # the autopilot's attitude at 50 Hz, only before the turn
+        t_ns = BOOT_NS + round(k / 50 * 1e9)
+        events.append((t_ns, AttitudeSample(t_ns, tuple(quat.from_rotvec([0.0, 0.0, _yaw_at(k / 50)])), SRC)))
+    estimates = []
+    for t_ns, sample in sorted(events, key=lambda e: e[0]):
+        estimates += loop.advance(t_ns + LINK_NS)
+        loop.push(sample, t_ns + LINK_NS)
+    estimates += loop.flush()
+    yaw = {e.sensor_t_ns - BOOT_NS: e.euler_deg[2] for e in estimates if e.sensor_t_ns is not None}
+    before = max(t for t in yaw if t <= START_S * 1e9)
+    after = max(t for t in yaw if t <= (START_S + TURN_S + SETTLE_S) * 1e9)
+    return math.radians(math.remainder(yaw[after] - yaw[before], 360.0))
+
+
+@pytest.mark.parametrize("imu_hz", [25.0, 50.0, 200.0 / 3.0, 100.0, 200.0, 400.0])
+@pytest.mark.parametrize("loop_hz", [50.0, 100.0, 200.0, 400.0])
+def test_a_turn_is_integrated_completely_at_any_imu_and_loop_rate(imu_hz, loop_hz):
+    turned = _turn(imu_hz, loop_hz)
+    assert abs(turned / TRUE_TURN_RAD - 1.0) < 0.02, f"{100 * turned / TRUE_TURN_RAD:.1f}% of the turn"
+
+
+def test_a_tick_without_a_sample_rotates_by_the_held_rate_and_the_next_sample_completes_the_interval():
+    """25 Hz constant-rate samples under a 100 Hz loop: the three ticks after a sample hold its rate; the
+    sample closing the interval applies the trapezoid minus what the hold applied (hand-worked)."""
+    from fuser.config import GyroSettings
+
+    params = GyroSettings()
+    track, first = integrate_gyro(params, None, [ImuSample(0, (0.0, 0.0, 0.2), (0, 0, -9.8), None, SRC)], [0], -10_000_000, 0)
+    rotations = []
+    for k in range(1, 5):
+        end = k * 10_000_000
+        sample = [ImuSample(40_000_000, (0.0, 0.0, 0.6), (0, 0, -9.8), None, SRC)] if k == 4 else []
+        track, motion = integrate_gyro(params, track, sample, [40_000_000] if sample else [], end - 10_000_000, end)
+        rotations.append(motion.raw_rotation_rad[2])
+        assert motion.held == (k < 4)
+    np.testing.assert_allclose(rotations[:3], [0.002, 0.002, 0.002])  # 0.2 rad/s held for 10 ms
+    # the interval 0-40 ms by the trapezoid is (0.2 + 0.6) / 2 * 0.04 = 0.016 rad; 0.006 of it was held
+    np.testing.assert_allclose(sum(rotations), 0.016)
+    assert first.gap_s == pytest.approx(0.01)  # before the first sample the rate is unknown
+    # held for 10 ms at the end of a sample: published-only error s^2 h^3 / 3
+    assert motion.hold_variance_rad2 == 0.0  # the last sample lies at the tick's end
+
+
+def test_a_hold_runs_out_after_the_longest_interval_and_the_rest_is_a_gap():
+    from fuser.config import GyroSettings
+
+    params = GyroSettings(max_interval_s=0.03, rate_walk_rad_s_rt_s=2.0)
+    track, _ = integrate_gyro(params, None, [ImuSample(0, (0.1, 0.0, 0.0), (0, 0, -9.8), None, SRC)], [0], -10_000_000, 0)
+    held = gap = closed = 0.0
+    for k in range(1, 6):
+        track, motion = integrate_gyro(params, track, [], [], (k - 1) * 10_000_000, k * 10_000_000)
+        held += motion.raw_rotation_rad[0]
+        gap += motion.gap_s
+        closed += motion.closed_variance_rad2
+        if k == 2:
+            assert motion.hold_variance_rad2 == pytest.approx(4.0 * 0.02**3 / 3.0)  # 20 ms into the hold
+    assert held == pytest.approx(0.1 * 0.03)  # held for 30 ms only
+    assert gap == pytest.approx(0.02)  # the last 20 ms of the 50 have no rate
+    assert closed == pytest.approx(4.0 * 0.03**3 / 3.0)  # the hold's unverified rotation enters the state once
