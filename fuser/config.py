@@ -498,6 +498,8 @@ def _build(cls: type, table: Mapping[str, Any], section: str) -> Any:
             if not isinstance(value, Mapping):
                 raise ValueError(f"{section}.{key} must be a table [{section}.{key}], got {value!r}")
             value = _build(type(default), value, f"{section}.{key}")
+        elif isinstance(value, list):  # TOML arrays: every group's sequences are tuples (frozen, comparable)
+            value = tuple(value)
         values[key] = value
     return cls(**values)
 

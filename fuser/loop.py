@@ -17,11 +17,13 @@ samples with their placed times (:class:`fuser.model.TickInput`), and picks
 the reference IMU (the first IMU stream to arrive), whose clock the
 estimates' ``sensor_t_ns`` is on.
 
-One vehicle. The first IMU's vehicle (:func:`vehicle_of`) is the one fused:
-its IMUs (ArduPilot's RAW_IMU, SCALED_IMU2, SCALED_IMU3 are instances 0, 1,
-2, each on its own clock) are fused together, and IMU or attitude samples of
-any other vehicle are counted (``other_vehicle``) and dropped, never
-averaged with it. The model returns a plain
+One vehicle. On each transport the first IMU's vehicle (:func:`vehicle_of`)
+is the one fused: its IMUs (ArduPilot's RAW_IMU, SCALED_IMU2, SCALED_IMU3 are
+instances 0, 1, 2, each on its own clock) are fused together, and IMU or
+attitude samples of any other vehicle on that transport (another MAVLink
+system id) are counted (``other_vehicle``) and dropped, never averaged with
+it. A CAN bus and a MAVLink link given together are the one aircraft's (its
+DroneCAN sensors and its autopilot): both are fused. The model returns a plain
 :class:`fuser.model.TickResult`; the wire :class:`~fuser.codec.Estimate` is
 built here from it (:func:`estimate_of`).
 """
@@ -69,7 +71,9 @@ class FusionLoop:
         self._next_tick: int | None = None
         self._last_tick: int | None = None
         self.reference_imu: SourceId | None = None
-        """The first IMU stream to arrive: the estimates' ``sensor_t_ns`` is on its clock, its vehicle is fused."""
+        """The first IMU stream to arrive: the estimates' ``sensor_t_ns`` is on its clock."""
+        self._vehicles: dict[str, tuple] = {}
+        """Per transport, the vehicle fused: the one of its first IMU sample."""
         self._latest_diagnostics: dict[str, dict[str, Any]] = {}
 
     @property
@@ -80,9 +84,14 @@ class FusionLoop:
     def push(self, sample: Sample, receive_ns: int) -> None:
         """Hand a sample to the loop; it is fused by the tick that covers its time."""
         if isinstance(sample, (ImuSample, AttitudeSample)):
-            if self.reference_imu is None and isinstance(sample, ImuSample):
-                self.reference_imu = sample.source
-            elif self.reference_imu is not None and vehicle_of(sample.source) != vehicle_of(self.reference_imu):
+            vehicle = vehicle_of(sample.source)
+            if isinstance(sample, ImuSample):
+                chosen = self._vehicles.setdefault(sample.source.transport, vehicle)
+                if self.reference_imu is None:
+                    self.reference_imu = sample.source
+            else:
+                chosen = self._vehicles.get(sample.source.transport, vehicle)
+            if vehicle != chosen:
                 self.counters["other_vehicle"] += 1
                 return
         key = (sample.source, type(sample))

@@ -45,7 +45,8 @@ def _toml(config: FuserConfig) -> str:
             lines.append(f"{f.name} = {_toml_value(value)}")
     for name, group in groups:
         lines.append(f"[fuser.{name}]")
-        lines += [f"{g.name} = {_toml_value(getattr(group, g.name))}" for g in dataclasses.fields(group)]
+        lines += [f"{g.name} = {_toml_value(getattr(group, g.name))}" for g in dataclasses.fields(group)
+                  if getattr(group, g.name) is not None]  # TOML has no null: an unset key is left out
     return "\n".join(lines) + "\n"
 
 
