@@ -19,7 +19,7 @@ pytest.importorskip("google.protobuf")
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory  # noqa: E402
 from scipy.spatial.transform import Rotation  # noqa: E402
 
-from drivers.samples import AttitudeSample, ImuSample  # noqa: E402
+from drivers.samples import AttitudeSample, GnssSample, ImuSample  # noqa: E402
 from fuser.codec import encode_sample  # noqa: E402
 from fuser.foxglove_live import FoxgloveLive  # noqa: E402
 from fuser.record import McapRecorder, read_log  # noqa: E402
@@ -106,7 +106,7 @@ def test_a_foxglove_client_subscribes_and_decodes_every_channel(offered: list[st
             for kind, obj, t in feed:
                 if kind == "input":
                     fox.write_sample(obj, t)
-                    expected.append((f"/input/{ {ImuSample: 'imu', AttitudeSample: 'attitude'}[type(obj)] }", t, obj))
+                    expected.append((f"/input/{ {ImuSample: 'imu', AttitudeSample: 'attitude', GnssSample: 'gnss'}[type(obj)] }", t, obj))
                     if isinstance(obj, AttitudeSample):
                         expected += [("/tf", t, ("reference_body", obj.q_wxyz)), ("/reference/pose", t, obj.q_wxyz)]
                 elif kind == "truth":
