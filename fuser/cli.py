@@ -410,6 +410,18 @@ def _load_config(args: argparse.Namespace) -> FuserConfig | None:
         raise UsageError(f"bad configuration{f' in {args.config}' if args.config else ''}: {e}") from e
 
 
+def _beside_ros2_router(config: FuserConfig, args: argparse.Namespace) -> FuserConfig:
+    """With ``--ros2`` through a router and the zenoh endpoints left at their defaults, the fuser's own zenoh
+    session joins that router as well instead of listening on its port (7447 both): one router, no clash."""
+    ros2 = config.ros2
+    wants_ros2 = getattr(args, "ros2", False) or ros2.enabled
+    defaults = FuserConfig().zenoh
+    if not wants_ros2 or not ros2.connect_to_router or config.zenoh != defaults or getattr(args, "no_zenoh", False):
+        return config
+    log.info("zenoh: publishing through the ROS 2 router %s (not listening on its port)", ros2.router_endpoint)
+    return dataclasses.replace(config, zenoh=dataclasses.replace(defaults, listen=(), connect=(ros2.router_endpoint,)))
+
+
 def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
     """The zenoh publisher, open, or a one-line error naming the endpoint and what to do instead."""
     if getattr(args, "no_zenoh", False):
@@ -476,6 +488,7 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         _check_output(args.record, "--record")
     clock = WallClock.start(args.speed) if args.speed > 0 else None
     with ExitStack() as stack:
+        config = _beside_ros2_router(config, args)
         pub = _publisher(stack, config, args)
         rec = None
         if args.record:
@@ -537,6 +550,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
             extra = {} if interface in CAN_WITHOUT_BITRATE else {"bitrate": args.bitrate or DEFAULT_BITRATE}
             sources[f"can:{spec}"] = _open_source(stack, f"CAN bus {spec}",
                                                   partial(DroneCanSource, interface=interface, channel=channel, **extra))
+        config = _beside_ros2_router(config, args)
         pub = _publisher(stack, config, args)
         clock = WallClock.start()
         rec = None
