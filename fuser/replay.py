@@ -10,7 +10,6 @@ decoded and encoded again.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from dataclasses import dataclass
@@ -18,7 +17,7 @@ from pathlib import Path
 from typing import Iterator, TextIO
 
 from drivers.samples import Sample
-from fuser.codec import decode_sample
+from fuser.codec import decode_sample, loads
 from fuser.config import FuserConfig
 from fuser.inputs import tlog_inputs
 from fuser.pipeline import Pipeline
@@ -67,7 +66,7 @@ class _Progress:
 def _copied_inputs(contents: LogContents, pipeline: Pipeline, recorder: McapRecorder) -> Iterator[tuple[Sample, int]]:
     """An MCAP log's inputs, each written unchanged to ``recorder`` where an input sink of the pipeline would write it."""
     for m in contents.of(INPUT_TOPICS):
-        sample, receive_ns = decode_sample(m.topic, json.loads(m.data))
+        sample, receive_ns = decode_sample(m.topic, loads(m.data))
         pipeline.advance(receive_ns)  # as in Pipeline.feed: the ticks due before the sample are recorded before it
         recorder.write_message(m.topic, receive_ns, sample.t_ns, m.data)
         yield sample, receive_ns

@@ -1,0 +1,130 @@
+"""fuser.codec's JSON: byte for byte the standard library's encoder, and the standard library's parse.
+
+The reference is Python's own ``json`` module, configured as ``dumps`` documents it
+(compact separators, ASCII, NaN refused): the fast path must never hand out other bytes.
+"""
+
+import json
+import math
+import random
+import struct
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fuser import codec
+from fuser.codec import Estimate, dumps, loads
+from fuser.record import read_log
+
+LOGS = Path(__file__).resolve().parent.parent / "logs"
+REFERENCE = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
+
+
+def reference(obj) -> bytes:
+    return REFERENCE.encode(obj).encode()
+
+
+def _from_bits(bits: int) -> float:
+    return struct.unpack("<d", bits.to_bytes(8, "little"))[0]
+
+
+def awkward_floats(rng: random.Random) -> list[float]:
+    """Every notation CPython's repr switches between, and the values either side of each switch."""
+    values = [0.0, -0.0, 5e-324, -5e-324, 2.2250738585072014e-308, 2.225073858507201e-308, 1.7976931348623157e308,
+              0.1, 0.2, 0.3, 1 / 3, 2.0 ** 53, 2.0 ** 53 + 2, 2.0 ** 63, 2.0 ** 64, 9007199254740993.0]
+    for e in range(-324, 309):  # powers of ten and their neighbours: the notation switches at 1e-4 and 1e16
+        p = float(f"1e{e}")
+        values += [p, -p, math.nextafter(p, 0.0), math.nextafter(p, math.inf), 1.5 * p, 9.999999999999999 * p]
+    for _ in range(20_000):
+        values.append(_from_bits(rng.getrandbits(64)))  # random bit patterns: every exponent equally
+        values.append(_from_bits(rng.getrandbits(52) | (rng.getrandbits(1) << 63)))  # subnormals
+        values.append(rng.uniform(-1.0, 1.0) * 10.0 ** rng.randint(-12, 20))  # the magnitudes telemetry has
+        values.append(rng.uniform(1e-5, 1e-4) * rng.choice((1.0, -1.0)))  # where orjson writes fixed notation
+    return [v for v in values if math.isfinite(v)]
+
+
+INTEGERS = [0, 1, -1, 2**31, 2**53 + 1, 2**63 - 1, 2**63, -(2**63), -(2**63) - 1, 2**64 - 1, 2**64, -(2**64), 10**30, True, False]
+
+
+def test_every_float_encodes_as_the_standard_library_does():
+    values = awkward_floats(random.Random(17))
+    fast = 0
+    for v in values:
+        expected = reference(v)
+        out = codec._orjson_if_identical(v)
+        assert out is None or out == expected, (v, out, expected)
+        assert dumps(v) == expected
+        fast += out is not None
+    ordinary = sum(1e-4 <= abs(v) for v in values)
+    assert fast >= 0.99 * ordinary  # the fast path is taken: above 1e-4 nothing differs
+
+
+def test_floats_inside_messages():
+    """As in an estimate: many floats in lists inside a dict, with integers near 2**63 beside them."""
+    rng = random.Random(3)
+    values = awkward_floats(rng)
+    for i in range(0, len(values), 16):
+        msg = {"t_ns": rng.choice(INTEGERS), "M": [values[i : i + 4], values[i + 4 : i + 8]], "Z": tuple(values[i + 8 : i + 16]),
+               "counters": {"ticks": rng.choice(INTEGERS)}}
+        assert dumps(msg) == reference(msg)
+
+
+@pytest.mark.parametrize("value", INTEGERS, ids=repr)
+def test_integers_near_the_64_bit_limits(value):
+    assert dumps(value) == reference(value)
+    assert dumps([value, -0.0, {"n": value}]) == reference([value, -0.0, {"n": value}])
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, [1.0, math.nan], {"z": [0.0, -math.inf]}], ids=repr)
+def test_nan_and_infinity_are_refused(bad):
+    with pytest.raises(ValueError):
+        reference(bad)
+    with pytest.raises(ValueError):
+        dumps(bad)
+
+
+@pytest.mark.parametrize("text", ["mavlink", "caf\u00e9", "\u2028", "\x00\x1f\x7f", 'quote " and \\ and /', "\U0001f681", "\b\f\n\r\t"])
+def test_strings_are_escaped_as_the_standard_library_does(text):
+    assert dumps({text: text}) == reference({text: text})
+
+
+def test_keys_the_standard_library_converts():
+    obj = {1: "a", 2.5: "b", True: "c", None: "d"}
+    assert dumps(obj) == reference(obj)
+
+
+JSON_VALUES = st.recursive(
+    st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False, allow_infinity=False) | st.text(),
+    lambda children: st.lists(children, max_size=6) | st.dictionaries(st.text(max_size=8), children, max_size=6),
+    max_leaves=40,
+)
+
+
+@settings(max_examples=400, deadline=None)
+@given(JSON_VALUES)
+def test_any_json_value(obj):
+    assert dumps(obj) == reference(obj)
+    assert loads(dumps(obj)) == json.loads(reference(obj))
+
+
+@pytest.mark.parametrize("log", sorted(LOGS.glob("sim_*.mcap")), ids=lambda p: p.stem)
+def test_recorded_estimates_reencode_to_their_stored_bytes(log):
+    """The estimates in logs/ were written by the standard library's encoder: re-encoded they give the same bytes."""
+    stored = [m.data for m in read_log(log).raw if m.topic == "/estimate"]
+    assert len(stored) > 100
+    for data in stored:
+        assert Estimate.from_dict(json.loads(data)).to_json() == data
+
+
+def test_loads_parses_as_the_standard_library_does():
+    rng = random.Random(11)
+    texts = [repr(v) for v in awkward_floats(rng)[::7]]
+    for _ in range(20_000):  # more digits than a double holds, every exponent: correct rounding decides
+        digits = "".join(rng.choice("0123456789") for _ in range(rng.randint(1, 40)))
+        texts.append(f"{rng.choice(('', '-'))}{digits[0]}.{digits[1:] or '0'}e{rng.randint(-340, 320)}")
+    texts += [repr(i) for i in INTEGERS if not isinstance(i, bool)] + ["NaN", "-Infinity", "[1e400]", '"\\ud800"', '{"a":1,"a":2}']
+    for text in texts:
+        expected, got = json.loads(text), loads(text.encode())
+        assert type(got) is type(expected) and repr(got) == repr(expected), text
