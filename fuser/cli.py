@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any, Sequence
 
 from drivers.scenarios import SCENARIOS
+from fuser import batch
 from fuser.config import FuserConfig, load_config
 
 __all__ = ["main"]
@@ -93,10 +94,10 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("replay", help="replay a recorded MCAP or .tlog through the loop, as fast as possible",
                        description="Replay a log (MCAP recorded by bingham-fuser, or a MAVLink .tlog) through the same loop on "
-                                   "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes.")
+                                   "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes. "
+                                   "Many logs: --out-dir DIR, in parallel processes (--jobs) or on a Dask cluster (--dask).")
     _common(p)
-    p.add_argument("log", help="input log (.mcap or .tlog)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
+    batch.add_replay_arguments(p)
 
     p = sub.add_parser("import", help="convert a BROAD trial (.hdf5) or a PX4 ULog (.ulg) into a replayable MCAP",
                        description="Encode a real log's IMU (and a PX4 log's EKF2 attitude) as MAVLink, decode it with the "
@@ -236,7 +237,9 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
 def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.replay import replay
 
-    summary = replay(args.log, args.output, config)
+    if batch.is_batch(args):
+        return batch.command(args, config)
+    summary = replay(args.log[0], args.output, config)
     print(f"replay: {summary.samples} samples -> {summary.estimates} estimates in {summary.seconds:.2f} s "
           f"({summary.samples_per_s:,.0f} samples/s); {args.output}")
     if summary.counters:
