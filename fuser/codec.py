@@ -24,7 +24,7 @@ import orjson
 
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, MagSample, Sample, SourceId
 
-__all__ = ["Estimate", "decode_sample", "dumps", "encode_sample", "loads", "sample_channel"]
+__all__ = ["Estimate", "decode_sample", "dumps", "encode_sample", "loads", "sample_channel", "sample_json"]
 
 
 _ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
@@ -32,22 +32,24 @@ _ORJSON_OPTIONS = orjson.OPT_PASSTHROUGH_DATACLASS | orjson.OPT_PASSTHROUGH_DATE
 """Dataclasses, datetimes and subclasses of str, int, dict, list: orjson refuses them, as (or where) the standard library does."""
 
 
-def _orjson_if_identical(obj: Any) -> bytes | None:
+def _orjson_if_identical(obj: Any, nones: int = 0) -> bytes | None:
     """orjson's encoding of ``obj`` where it is byte for byte the standard library's, else None.
 
     Both print a float as the shortest digits that round-trip (CPython's ``repr``), in the same
     notation except below 1e-4, where orjson writes ``1e-5`` as ``0.00001`` and ``1.5e-07`` as
-    ``1.5e-7``: any ``e-`` or ``0.0000`` sends the message to the standard library. So does
-    ``null``, because orjson writes NaN and infinity as null where the standard library refuses
-    them, and any non-ASCII byte or DEL, which the standard library escapes. orjson refuses
-    (raises) integers beyond 64 bits, non-string keys, and nesting deeper than 254: those go
-    to the standard library too.
+    ``1.5e-7``: any ``e-`` or ``0.0000`` sends the message to the standard library. orjson
+    writes NaN and infinity as ``null`` where the standard library refuses them, so the output
+    may hold no more nulls than ``nones``, a count of None values that ``obj`` certainly holds
+    (each writes one null: any other null is a NaN, an infinity or text). Any non-ASCII byte or
+    DEL, which the standard library escapes, sends it there too. orjson refuses (raises)
+    integers beyond 64 bits, non-string keys and nesting deeper than 254: the standard library
+    encodes those.
     """
     try:
         out = orjson.dumps(obj, option=_ORJSON_OPTIONS)
     except orjson.JSONEncodeError:
         return None
-    if b"e-" in out or b"0.0000" in out or b"null" in out or b"\x7f" in out or not out.isascii():
+    if b"e-" in out or b"0.0000" in out or b"\x7f" in out or not out.isascii() or out.count(b"null") != nones:
         return None
     return out
 
@@ -115,6 +117,14 @@ def encode_sample(sample: Sample, receive_ns: int) -> dict[str, Any]:
     else:
         out["q_wxyz"] = list(sample.q_wxyz)
     return out
+
+
+def sample_json(sample: Sample, receive_ns: int) -> bytes:
+    """``dumps(encode_sample(sample, receive_ns))``, without the standard library's encoder for the None
+    fields a sample may have (an IMU without magnetometer, a GNSS fix without position)."""
+    d = encode_sample(sample, receive_ns)
+    out = _orjson_if_identical(d, sum(v is None for v in d.values()))
+    return _ENCODER.encode(d).encode() if out is None else out
 
 
 @lru_cache(maxsize=1024)

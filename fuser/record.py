@@ -34,7 +34,7 @@ from mcap.writer import CompressionType, Writer
 
 from drivers.samples import Quat, Sample
 
-from .codec import Estimate, decode_sample, dumps, encode_sample, sample_channel
+from .codec import Estimate, decode_sample, dumps, sample_channel, sample_json
 
 __all__ = ["CHANNELS", "LogContents", "McapRecorder", "RawMessage", "RecorderProcess", "pose_in_frame", "read_log"]
 
@@ -223,7 +223,7 @@ class McapRecorder:
 
     def write_sample(self, sample: Sample, receive_ns: int) -> None:
         """An input sample; log time = receive time, publish time = the sender's time."""
-        self.write_message(sample_channel(sample), receive_ns, sample.t_ns, dumps(encode_sample(sample, receive_ns)))
+        self.write_message(sample_channel(sample), receive_ns, sample.t_ns, sample_json(sample, receive_ns))
 
     def write_estimate(self, est: Estimate) -> None:
         """An estimate on ``/estimate`` (full) and ``/pose`` (Foxglove), at its tick time."""
