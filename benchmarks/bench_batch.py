@@ -1,31 +1,32 @@
 """Batch replay throughput: --jobs 2 (and a two-worker local Dask cluster) against --jobs 1.
 
-    python benchmarks/bench_batch.py              # 6 copies of every log in logs/ (about two minutes)
+    python benchmarks/bench_batch.py              # 8 copies of every log in logs/ (about two minutes)
     python benchmarks/bench_batch.py --copies 2   # quicker, with more start-up in the ratio
 
-Each run is ``fuser.batch.run_batch`` over the same logs into a fresh folder, timed from
-the call to the last summary row: process start-up (spawned workers import numpy, numba's
-cache, the model) is part of the cost. The ratio is the single-process wall time over the
-parallel one; the target is 1.8 on a two-core machine. The outputs of every run are checked
-to be byte-identical to --jobs 1's. The load average before and after each run is printed:
-on a shared machine a loaded run understates the ratio.
+Each run is the command a user types, ``bingham-fuser replay LOG... --out-dir DIR --jobs N``
+(or ``--dask`` to a two-worker local cluster started here), in a new process, timed from
+its start to its exit: process start-up (the parent's, and the spawned workers' imports of
+numpy, scipy, numba's cache and the model) is part of the cost. The ratio is the --jobs 1
+wall time over the other's; the target is 1.8 on a two-core machine. The outputs of every
+run are checked to be byte-identical to --jobs 1's. The load average before and after each
+run is printed: on a shared machine a loaded run understates the ratio.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
-from typing import Callable
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from fuser.batch import LogResult, run_batch  # noqa: E402
-from fuser.config import FuserConfig  # noqa: E402
+from fuser.batch import output_paths  # noqa: E402
+from fuser.record import INPUT_TOPICS, read_log  # noqa: E402
 
 TARGET = 1.8
 
@@ -46,40 +47,43 @@ def load() -> str:
     return "/".join(f"{x:.2f}" for x in os.getloadavg())
 
 
-def timed(run: Callable[[], list[LogResult]]) -> tuple[float, list[LogResult], str]:
+def timed_replay(inputs: list[Path], out_dir: Path, where: list[str]) -> tuple[float, str]:
+    """Wall seconds of one ``bingham-fuser replay ... --out-dir`` process, and the load around it."""
     before = load()
     start = time.perf_counter()
-    results = run()
-    return time.perf_counter() - start, results, f"{before} -> {load()}"
+    run = subprocess.run([sys.executable, "-m", "fuser.cli", "replay", *map(str, inputs), "--out-dir", str(out_dir), *where],
+                         cwd=ROOT, capture_output=True, text=True)
+    wall_s = time.perf_counter() - start
+    if run.returncode != 0:
+        raise SystemExit(f"replay {' '.join(where)} failed ({run.returncode}):\n{run.stdout}{run.stderr}")
+    return wall_s, f"{before} -> {load()}"
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--copies", type=int, default=6, help="copies of each log in logs/ (default: 6)")
+    parser.add_argument("--copies", type=int, default=8, help="copies of each log in logs/ (default: 8)")
     parser.add_argument("--no-dask", action="store_true", help="skip the local Dask cluster")
     args = parser.parse_args()
 
     logs = sorted((ROOT / "logs").glob("*.mcap"))
-    config = FuserConfig()
+    samples = args.copies * sum(len(read_log(log).of(INPUT_TOPICS)) for log in logs)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp_dir = Path(tmp)
         inputs = copies(logs, args.copies, tmp_dir / "in")
-        runs: dict[str, tuple[float, list[LogResult], str]] = {
-            "--jobs 1": timed(lambda: run_batch(inputs, tmp_dir / "jobs1", config, jobs=1)),
-            "--jobs 2": timed(lambda: run_batch(inputs, tmp_dir / "jobs2", config, jobs=2)),
+        runs = {
+            "--jobs 1": timed_replay(inputs, tmp_dir / "jobs1", ["--jobs", "1"]),
+            "--jobs 2": timed_replay(inputs, tmp_dir / "jobs2", ["--jobs", "2"]),
         }
         if not args.no_dask:
             from dask.distributed import LocalCluster
 
             with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-                runs["Dask, LocalCluster of 2 processes"] = timed(
-                    lambda: run_batch(inputs, tmp_dir / "dask", config, dask_address=cluster.scheduler_address))
-        single_s, single, _ = runs["--jobs 1"]
-        assert all(r.ok for r in single), [r.reason for r in single if not r.ok]
-        samples = sum(r.samples for r in single)
-        for name, (wall_s, results, loads) in runs.items():
-            same = all(Path(a.output).read_bytes() == Path(b.output).read_bytes() for a, b in zip(single, results))
+                runs["--dask, LocalCluster of 2 processes"] = timed_replay(inputs, tmp_dir / "dask", ["--dask", cluster.scheduler_address])
+        single_s = runs["--jobs 1"][0]
+        for (name, (wall_s, loads)), folder in zip(runs.items(), ("jobs1", "jobs2", "dask")):
+            same = all(a.read_bytes() == b.read_bytes()
+                       for a, b in zip(output_paths(inputs, tmp_dir / "jobs1"), output_paths(inputs, tmp_dir / folder)))
             ratio = single_s / wall_s
             rows.append((name, f"{wall_s:.1f} s", f"{samples / wall_s:,.0f}", f"{ratio:.2f}x",
                          "" if name == "--jobs 1" else ("met" if ratio >= TARGET else "NOT met"), "yes" if same else "NO", loads))

@@ -21,7 +21,7 @@ import multiprocessing as mp
 import os
 import sys
 import time
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -56,17 +56,21 @@ class LogTask:
 
 @dataclass(frozen=True)
 class LogResult:
-    """What one task did. ``reason`` is empty when ``ok``; a failed task's output file is removed."""
+    """What one task did. ``reason`` (one line) is empty when ``ok``; a failed task's output file is removed."""
 
     log: str
     output: str
     ok: bool
     reason: str = ""
     samples: int = 0
+    """Input samples fed to the loop."""
     estimates: int = 0
     seconds: float = 0.0
+    """The replay's own wall time (reading, fusing, writing), without the scoring."""
     accepted: int = 0
+    """Samples the loop buffered for a tick (the others came late)."""
     rejected: int = 0
+    """Late samples and gated measurements (``REJECTION_COUNTERS``)."""
     error_deg: float | None = None
     """RMS total error against ``reference`` after the first ``SCORE_SINCE_S`` seconds (all of a shorter log)."""
     reference: str | None = None

@@ -92,7 +92,7 @@ def test_strings_are_escaped_as_the_standard_library_does(text):
 
 
 def test_keys_the_standard_library_converts():
-    obj = {1: "a", 2.5: "b", True: "c", None: "d"}
+    obj = {1: "a", 2.5: "b", False: "c", None: "d"}
     assert dumps(obj) == reference(obj)
 
 
