@@ -11,7 +11,6 @@ process so that the fusion loop never waits for, nor dies with, the disk.
 
 from __future__ import annotations
 
-import json
 import logging
 import multiprocessing as mp
 import os
@@ -34,7 +33,7 @@ from mcap.writer import CompressionType, Writer
 
 from drivers.samples import Quat, Sample
 
-from .codec import Estimate, decode_sample, dumps, sample_channel, sample_json
+from .codec import Estimate, decode_sample, dumps, loads, sample_channel, sample_json
 
 __all__ = ["CHANNELS", "LogContents", "McapRecorder", "RawMessage", "RecorderProcess", "pose_in_frame", "read_log"]
 
@@ -393,7 +392,7 @@ class LogContents:
     @cached_property
     def messages(self) -> list[tuple[str, int, dict[str, Any]]]:
         """Every message as ``(topic, log_time_ns, dict)``, in log-time order."""
-        return [(m.topic, m.log_time, json.loads(m.data)) for m in self.raw]
+        return [(m.topic, m.log_time, loads(m.data)) for m in self.raw]
 
     @property
     def records(self) -> int:
@@ -406,11 +405,11 @@ class LogContents:
 
     def topic(self, name: str) -> list[tuple[int, dict[str, Any]]]:
         """``(log_time_ns, dict)`` of one topic."""
-        return [(m.log_time, json.loads(m.data)) for m in self.of((name,))]
+        return [(m.log_time, loads(m.data)) for m in self.of((name,))]
 
     def inputs(self) -> list[tuple[Sample, int]]:
         """Input samples and their receive times, in log-time order."""
-        return [decode_sample(m.topic, json.loads(m.data)) for m in self.of(INPUT_TOPICS)]
+        return [decode_sample(m.topic, loads(m.data)) for m in self.of(INPUT_TOPICS)]
 
     def estimates(self) -> list[Estimate]:
         return [Estimate.from_dict(d) for _, d in self.topic("/estimate")]
