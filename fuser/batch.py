@@ -11,7 +11,7 @@ write the same bytes. Local workers are started with the ``spawn`` method
 fails is a row of the summary with its reason, never the end of the batch;
 the exit status says whether any failed. On Dask, every path must name the
 same file on the workers as here (a shared filesystem), and the workers need
-bingham-fuser installed.
+the same version of bingham-fuser installed.
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def _score(output: str) -> tuple[float | None, str | None]:
     from fuser.report import errors_of_log
 
     scored = errors_of_log(output)
-    if scored is None:
+    if scored is None or len(scored[1].t_ns) == 0:  # no reference, or none within the estimates' time span
         return None, None
     name, err = scored
     since_s = SCORE_SINCE_S if (err.t_ns[-1] - err.t_ns[0]) * 1e-9 > SCORE_SINCE_S else 0.0
