@@ -235,3 +235,19 @@ def test_a_killed_worker_costs_no_log(logs, reference, tmp_path):
     assert [r.ok for r in results] == [True, True], [r.reason for r in results]
     for r, log in zip(results, inputs):
         assert Path(r.output).read_bytes() == reference[log].read_bytes()
+
+
+def test_a_reference_outside_the_flight_scores_nothing_and_fails_nothing(tmp_path):
+    """Truth recorded 1000 s after the flight (another clock): the log replays, with no error to report."""
+    from fuser.record import McapRecorder
+
+    log = tmp_path / "late_truth.mcap"
+    stored = read_log(HOVER)
+    with McapRecorder(log) as rec:
+        for m in stored.of(INPUT_TOPICS):
+            rec.write_message(*m)
+        for t_ns, q in stored.truth():
+            rec.write_truth(t_ns + 1_000_000_000_000, q)
+    result, = run_batch([log], tmp_path / "out", FuserConfig())
+    assert result.ok, result.reason
+    assert result.samples == len(stored.of(INPUT_TOPICS)) and result.error_deg is None and result.reference is None
