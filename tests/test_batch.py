@@ -30,7 +30,6 @@ from fuser.report import errors_of_log  # noqa: E402
 
 LOGS = Path(__file__).resolve().parent.parent / "logs"
 HOVER = LOGS / "sim_hover.mcap"
-MAGNET = LOGS / "sim_magnet.mcap"
 
 
 def write_tlog(path: Path, source: Path, count: int) -> int:
@@ -50,14 +49,13 @@ def write_tlog(path: Path, source: Path, count: int) -> int:
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
-    """Two MCAP logs, a .tlog, and a file that is no log, under names that collide."""
+    """An MCAP log, a .tlog under the same stem, and a file that is no log."""
     d = tmp_path_factory.mktemp("logs")
-    (d / "a").mkdir()
-    tlog = d / "a" / "sim_hover.tlog"  # same stem as logs/sim_hover.mcap
+    tlog = d / "sim_hover.tlog"  # same stem as logs/sim_hover.mcap
     packets = write_tlog(tlog, HOVER, 1000)  # 5 s at 200 Hz
     broken = d / "broken.mcap"
     broken.write_bytes(HOVER.read_bytes()[:100])  # the magic and half a header: no chunk survives
-    return {"mcap": [HOVER, MAGNET], "tlog": tlog, "tlog_packets": packets, "broken": broken}
+    return {"good": [HOVER, tlog], "tlog": tlog, "tlog_packets": packets, "broken": broken, "all": [HOVER, tlog, broken]}
 
 
 @pytest.fixture(scope="module")
@@ -65,10 +63,16 @@ def reference(logs, tmp_path_factory):
     """Each log replayed alone by fuser.replay, in this process."""
     d = tmp_path_factory.mktemp("reference")
     out = {}
-    for log in [*logs["mcap"], logs["tlog"]]:
+    for log in logs["good"]:
         out[log] = d / f"{log.stem}_{log.suffix[1:]}.mcap"
         replay(log, out[log], FuserConfig(), progress=None)
     return out
+
+
+@pytest.fixture(scope="module")
+def local(logs, tmp_path_factory):
+    """The batch with --jobs 1 (in this process)."""
+    return run_batch(logs["all"], tmp_path_factory.mktemp("jobs1"), FuserConfig(), jobs=1)
 
 
 def test_output_names_are_deterministic_and_distinct():
@@ -86,14 +90,12 @@ def test_an_output_that_would_overwrite_an_input_is_refused(tmp_path, capsys):
     assert log.read_bytes() == HOVER.read_bytes()
 
 
-def test_jobs_2_writes_the_bytes_of_jobs_1_and_of_single_replays(logs, reference, tmp_path):
-    inputs = [*logs["mcap"], logs["tlog"], logs["broken"]]
-    one = run_batch(inputs, tmp_path / "one", FuserConfig(), jobs=1)
-    two = run_batch(inputs, tmp_path / "two", FuserConfig(), jobs=2)
-    assert [r.output for r in one] == [str(tmp_path / "one" / n) for n in
-                                        ("sim_hover.mcap", "sim_magnet.mcap", "sim_hover-2.mcap", "broken.mcap")]
-    assert [r.ok for r in one] == [r.ok for r in two] == [True, True, True, False]
-    for r1, r2, log in zip(one, two, inputs[:3]):
+def test_jobs_2_writes_the_bytes_of_jobs_1_and_of_single_replays(logs, reference, local, tmp_path):
+    two = run_batch(logs["all"], tmp_path / "two", FuserConfig(), jobs=2)
+    assert [Path(r.output).name for r in local] == [Path(r.output).name for r in two] == \
+        ["sim_hover.mcap", "sim_hover-2.mcap", "broken.mcap"]
+    assert [r.ok for r in local] == [r.ok for r in two] == [True, True, False]
+    for r1, r2, log in zip(local, two, logs["good"]):
         expected = reference[log].read_bytes()
         assert Path(r1.output).read_bytes() == expected
         assert Path(r2.output).read_bytes() == expected
@@ -144,9 +146,9 @@ def test_cli_batch_exit_status_and_table(logs, tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["replay", str(HOVER), str(MAGNET), "-o", "x.mcap"], "-o is for one log"),
+        (["replay", str(HOVER), str(HOVER), "-o", "x.mcap"], "-o is for one log"),
         (["replay", str(HOVER), "-o", "x.mcap", "--jobs", "2"], "need --out-dir"),
-        (["replay", str(HOVER), str(MAGNET)], "--out-dir DIR"),
+        (["replay", str(HOVER), str(HOVER)], "--out-dir DIR"),
         (["replay", str(HOVER), "--out-dir", "d", "--jobs", "0"], "must be at least 1"),
         (["replay", str(HOVER), "--out-dir", "d", "--jobs", "2", "--dask", "tcp://127.0.0.1:1"], "not allowed with"),
     ],
@@ -190,15 +192,13 @@ class socket_port:
         self.sock.close()
 
 
-def test_dask_cluster_writes_the_bytes_of_the_local_run(logs, reference, tmp_path):
-    inputs = [*logs["mcap"], logs["tlog"], logs["broken"]]
+def test_dask_cluster_writes_the_bytes_of_the_local_run(logs, reference, local, tmp_path):
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        results = run_batch(inputs, tmp_path / "dask", FuserConfig(), dask_address=cluster.scheduler_address)
-    local = run_batch(inputs, tmp_path / "local", FuserConfig(), jobs=1)
-    assert [r.ok for r in results] == [True, True, True, False]
+        results = run_batch(logs["all"], tmp_path / "dask", FuserConfig(), dask_address=cluster.scheduler_address)
+    assert [r.ok for r in results] == [True, True, False]
     assert [Path(r.output).name for r in results] == [Path(r.output).name for r in local]
-    assert "not a readable MCAP" in results[3].reason
-    for r, lr, log in zip(results, local, inputs[:3]):
+    assert "not a readable MCAP" in results[2].reason
+    for r, lr, log in zip(results, local, logs["good"]):
         assert Path(r.output).read_bytes() == Path(lr.output).read_bytes() == reference[log].read_bytes()
         assert (r.samples, r.estimates, r.accepted, r.rejected, r.error_deg) == (lr.samples, lr.estimates, lr.accepted, lr.rejected, lr.error_deg)
 
@@ -222,7 +222,7 @@ def _worker_pids() -> list[int]:
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="finds the worker processes through /proc")
 def test_a_killed_worker_costs_no_log(logs, reference, tmp_path):
     """A worker killed from outside breaks the whole pool; every log it took down is replayed again, alone."""
-    inputs = logs["mcap"]
+    inputs = logs["good"]
     results: list = []
     thread = threading.Thread(target=lambda: results.extend(run_batch(inputs, tmp_path / "out", FuserConfig(), jobs=2)))
     thread.start()

@@ -103,7 +103,7 @@ JSON_VALUES = st.recursive(
 )
 
 
-@settings(max_examples=400, deadline=None)
+@settings(max_examples=200, deadline=None)
 @given(JSON_VALUES)
 def test_any_json_value(obj):
     assert dumps(obj) == reference(obj)
