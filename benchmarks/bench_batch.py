@@ -76,7 +76,7 @@ def timed_replay(inputs: list[Path], out_dir: Path, where: list[str]) -> tuple[f
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--copies", type=int, default=8, help="copies of each log in logs/ (default: 8)")
-    parser.add_argument("--repeats", type=int, default=2, help="alternating runs of --jobs 1 and 2; the fastest of each counts (default: 2)")
+    parser.add_argument("--repeats", type=int, default=2, help="alternating runs of --jobs 1 and 2, fastest counts (default: 2)")
     parser.add_argument("--no-dask", action="store_true", help="skip the local Dask cluster")
     args = parser.parse_args()
 
