@@ -41,6 +41,7 @@ from typing import Any, Callable, NoReturn, Sequence
 
 from drivers.base import SourceError
 from drivers.scenarios import SCENARIOS
+from fuser import batch
 from fuser.config import FuserConfig, load_config
 from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError
 from fuser.outputs import add_options as add_output_options
@@ -244,14 +245,14 @@ def _add_replay(sub: Any) -> None:
     p = sub.add_parser("replay", help="replay a recorded MCAP or .tlog through the loop, as fast as possible",
                        description="Replay a log (MCAP recorded by bingham-fuser, or a MAVLink .tlog) through the same loop on "
                                    "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes. A damaged "
-                                   "MCAP replays every chunk that can be read, and says what it skipped.")
+                                   "MCAP replays every chunk that can be read, and says what it skipped. Many logs: --out-dir DIR, "
+                                   "in parallel processes (--jobs) or on a Dask cluster (--dask).")
     p.set_defaults(handler=_cmd_replay, vehicle=None)  # no zenoh here: the vehicle name does not apply
     _verbosity(p)
     _config_file(p)
     _fusion_options(p)
     _link(p)
-    p.add_argument("log", help="input log (.mcap or .tlog)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
+    batch.add_replay_arguments(p)
 
 
 def _add_import(sub: Any) -> None:
@@ -582,12 +583,15 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
 def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.replay import replay
 
+    if batch.is_batch(args):
+        return batch.command(args, config)
+    log = args.log[0]
     _check_output(args.output, "--output")
-    summary = replay(args.log, args.output, config)
+    summary = replay(log, args.output, config)
     if summary.skipped:
-        _warn(f"{args.log} is damaged: skipped {summary.skipped.describe()}; replayed the rest")
+        _warn(f"{log} is damaged: skipped {summary.skipped.describe()}; replayed the rest")
     elif summary.incomplete:
-        _warn(f"{args.log} is incomplete ({summary.incomplete}): replayed its complete chunks")
+        _warn(f"{log} is incomplete ({summary.incomplete}): replayed its complete chunks")
     if summary.not_recorded:
         _warn(f"{sum(summary.not_recorded.values())} records could not be stored in {args.output} and were left out "
               f"({', '.join(f'{k}={v}' for k, v in sorted(summary.not_recorded.items()))})")
