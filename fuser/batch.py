@@ -6,9 +6,8 @@
 Each log is replayed by :func:`fuser.replay.replay` exactly as a single
 ``replay LOG -o OUT`` would, into ``DIR/<log stem>.mcap``, so the files do not
 depend on where a task ran: ``--jobs 1``, ``--jobs N`` and a Dask cluster
-write the same bytes. ``--jobs N`` replays in this process and N - 1 worker
-processes started with the ``spawn`` method (the parent may run zenoh
-threads, which must never be forked). A log that
+write the same bytes. Local workers are started with the ``spawn`` method
+(the parent may run zenoh threads, which must never be forked). A log that
 fails is a row of the summary with its reason, never the end of the batch;
 the exit status says whether any failed. On Dask, every path must name the
 same file on the workers as here (a shared filesystem), and the workers need
@@ -21,10 +20,8 @@ import argparse
 import multiprocessing as mp
 import os
 import sys
-import threading
 import time
-from collections import deque
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -171,62 +168,24 @@ def _largest_first(tasks: Sequence[LogTask]) -> list[LogTask]:
 
 
 def _in_processes(tasks: Sequence[LogTask], jobs: int, done: Callable[[LogResult], None]) -> None:
-    """This process and ``jobs - 1`` spawned workers take the logs from one queue, largest first.
-
-    This process works too because it needs no start-up (a spawned worker spends about 1.5 s
-    importing numpy, scipy, numba's cache and the model before its first log): with two
-    cores that start-up alone would cost a tenth of a 30 s batch. A worker that dies (killed,
-    out of memory) breaks the whole pool, so each log it took down is run again alone in a
-    fresh process: only a log that kills its own process fails.
-    """
+    """Local worker processes (spawned). A worker that dies (killed, out of memory) breaks the whole pool,
+    so each task it took down is run again alone in a fresh process: only a log that kills its own
+    process fails."""
     spawn = mp.get_context("spawn")
-    queue = deque(_largest_first(tasks))
-    lock = threading.Lock()  # done() and the queue are used from this thread and the pool's
     broken: list[LogTask] = []
-
-    def take() -> LogTask | None:
-        with lock:
-            return queue.popleft() if queue else None
-
-    def report(result: LogResult) -> None:
-        with lock:
-            done(result)
-
-    with ProcessPoolExecutor(max_workers=jobs - 1, mp_context=spawn) as pool:
-
-        def submit() -> None:
-            task = take()
-            if task is None:
-                return
+    with ProcessPoolExecutor(max_workers=jobs, mp_context=spawn) as pool:
+        futures = {pool.submit(run_task, t): t for t in _largest_first(tasks)}
+        for future in as_completed(futures):
             try:
-                future = pool.submit(run_task, task)
+                done(future.result())
             except BrokenProcessPool:
-                with lock:
-                    broken.append(task)
-                return
-            future.add_done_callback(lambda f: finished(f, task))
-
-        def finished(future: Future, task: LogTask) -> None:
-            try:
-                result = future.result()
-            except BrokenProcessPool:
-                with lock:
-                    broken.append(task)
-                return
-            report(result)
-            submit()
-
-        for _ in range(jobs - 1):
-            submit()
-        while (task := take()) is not None:
-            report(run_task(task))
+                broken.append(futures[future])
     for task in broken:
         with ProcessPoolExecutor(max_workers=1, mp_context=spawn) as alone:
             try:
-                result = alone.submit(run_task, task).result()
+                done(alone.submit(run_task, task).result())
             except BrokenProcessPool:
-                result = _failed(task, "the worker process died (killed, or out of memory)")
-        done(result)
+                done(_failed(task, "the worker process died (killed, or out of memory)"))
 
 
 def _on_dask(tasks: Sequence[LogTask], address: str, done: Callable[[LogResult], None]) -> None:
@@ -262,8 +221,8 @@ def run_batch(
     dask_address: str | None = None,
     progress: TextIO | None = None,
 ) -> list[LogResult]:
-    """Replay every log into ``out_dir`` (created), with ``jobs`` local processes (this one and ``jobs - 1``
-    workers) or on the Dask cluster at ``dask_address``; results in the order of ``logs``.
+    """Replay every log into ``out_dir`` (created), with ``jobs`` local processes (1: in this process)
+    or on the Dask cluster at ``dask_address``; results in the order of ``logs``.
 
     ``progress``: a stream for one progress bar over all logs, shown only if it is a terminal.
     """
