@@ -33,16 +33,18 @@ HOVER = LOGS / "sim_hover.mcap"
 
 
 def write_tlog(path: Path, source: Path, count: int) -> int:
-    """The first ``count`` IMU samples of an MCAP log as a .tlog of HIGHRES_IMU packets packed by pymavlink;
-    returns the packet count."""
+    """The first ``count`` IMU samples of an MCAP log as a .tlog of HIGHRES_IMU packets packed by pymavlink, after
+    the autopilot's HEARTBEAT (which the fuser locks onto); returns the IMU packet count."""
     mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
     imu = [(t, s) for s, t in read_log(source).inputs() if type(s).__name__ == "ImuSample"][:count]
     with open(path, "wb") as f:
+        heartbeat = mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3)  # quadrotor, PX4, active
+        f.write(struct.pack(">Q", imu[0][0] // 1000 - 1) + heartbeat.pack(mav))
         for i, (receive_ns, s) in enumerate(imu):
             mag = s.mag_gauss or (0.0, 0.0, 0.0)
             msg = mavlink.MAVLink_highres_imu_message(s.t_ns // 1000, *s.accel_m_s2, *s.gyro_rad_s, *mag, 0, 0, 0, 0,
                                                       0x3F | (0x1C0 if s.mag_gauss else 0), 0)
-            mav.seq = i % 256
+            mav.seq = (i + 1) % 256
             f.write(struct.pack(">Q", receive_ns // 1000) + msg.pack(mav))  # tlog: big-endian receive time in us, then the packet
     return len(imu)
 
@@ -112,7 +114,8 @@ def test_summary_counts_and_errors(logs, tmp_path):
     recorded = errors_of_log(HOVER)[1].rms(5.0)["total"]
     assert hover.reference == "truth" and hover.error_deg == pytest.approx(recorded, abs=1e-6)
     assert tlog.ok and tlog.samples == logs["tlog_packets"] and tlog.error_deg is None  # a .tlog of IMU only: no reference
-    assert not broken.ok and "not a readable MCAP" in broken.reason and not Path(broken.output).exists()
+    assert not broken.ok and "nothing to replay" in broken.reason and "no record could be read" in broken.reason
+    assert not Path(broken.output).exists()
     assert not missing.ok and missing.reason == "no such file"
     lines = batch.format_summary(results, wall_s=2.0)
     assert len(lines) == 6 and "\n" not in "".join(lines)
@@ -197,7 +200,7 @@ def test_dask_cluster_writes_the_bytes_of_the_local_run(logs, reference, local, 
         results = run_batch(logs["all"], tmp_path / "dask", FuserConfig(), dask_address=cluster.scheduler_address)
     assert [r.ok for r in results] == [True, True, False]
     assert [Path(r.output).name for r in results] == [Path(r.output).name for r in local]
-    assert "not a readable MCAP" in results[2].reason
+    assert "nothing to replay" in results[2].reason
     for r, lr, log in zip(results, local, logs["good"]):
         assert Path(r.output).read_bytes() == Path(lr.output).read_bytes() == reference[log].read_bytes()
         assert (r.samples, r.estimates, r.accepted, r.rejected, r.error_deg) == (lr.samples, lr.estimates, lr.accepted, lr.rejected, lr.error_deg)
