@@ -61,7 +61,6 @@ from .mavlink_encode import MavlinkEncoder
 from .samples import AttitudeSample, GnssSample, ImuSample, Sample, SourceId
 
 GRAVITY_M_S2 = 9.80665
-EARTH_FIELD_NED_GAUSS = (0.21, 0.0, 0.43)
 WGS84_A_M = 6378137.0
 WGS84_E2 = 6.69437999014e-3
 GNSS_FIX_3D = 3
@@ -93,8 +92,9 @@ class SimConfig:
     accel_range_m_s2: float = 156.9
     dropout_probability: float = 0.002
     attitude_error_rad: float = 0.01
-    mag_field_ned_gauss: tuple[float, float, float] | None = EARTH_FIELD_NED_GAUSS
-    """The earth field the magnetometer reads (north, east, down); None: the WMM's at the flight's position and date."""
+    mag_field_ned_gauss: tuple[float, float, float] | None = None
+    """The earth field the magnetometer reads (north, east, down); None (the default): the World Magnetic Model's
+    at the flight's position and date, declination included, as a real magnetometer reads it."""
     rotor_drag_1_s: float = 0.35
     """Multirotor: specific force per m/s of body-horizontal velocity (linear rotor drag)."""
     vertical_damping_1_s: float = 1.0
