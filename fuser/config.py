@@ -431,9 +431,6 @@ class GnssSettings(Settings):
     moving_speed_m_s: Annotated[float, Range(gt=0, unit="m/s")] = 1.0
     """A vehicle whose latest fix is faster than this is moving, whatever its IMU says: rest detection is off
     (a smooth cruise with little vibration otherwise passes for rest, and its slow turn rates for a bias)."""
-    unknown_vertical_accel_m_s2: Annotated[float, Range(ge=0, unit="m/s^2")] = 0.5
-    """Without a vertical velocity (GPS_RAW_INT) the low-passed vertical acceleration is taken as zero; this
-    is its assumed RMS (climbs and descents starting or ending), counted in the update's sigma."""
 
 
 @dataclass(frozen=True)

@@ -139,7 +139,7 @@ def attitude_jump(seed: int = 4, start_s: float = START_S, seconds: float = 4.0,
                 s = AttitudeSample(s.t_ns, tuple(quat.multiply(s.q_wxyz, jump)), s.source)
                 (s,) = MavlinkDecoder().feed(encoder.encode(s, "ATTITUDE"))  # as the autopilot would send it
             events.append((receive_ns, s))
-    config = FuserConfig(latency_ms=LINK_JITTER_MS).replace(mag={"field_ned_gauss": SimConfig().mag_field_ned_gauss})
+    config = FuserConfig(latency_ms=LINK_JITTER_MS).replace(mag={"field_ned_gauss": flight.mag_field_ned_gauss})
     return _fuse(events, config, flight, "attitude source jumps 30 deg", start_s, start_s + seconds)
 
 
