@@ -194,7 +194,9 @@ class FusionModel:
 
         # 3. bias feedback from the tick's correction
         if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, rate, context.prior_doubt_deg):
-            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, interval)
+            # the correction spans the ticks since the bias last learnt: in motion with GNSS, the aided readings' spacing
+            learnt_over = velocity.interval_s if velocity.active and velocity.moving else interval
+            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, learnt_over)
 
         # 4. publish: widened by the model error, the error of a rate held since the last sample, and an IMU kept out
         widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)

@@ -303,8 +303,11 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     body_norm, world_norm = _norm(body), _norm(world)
     norm_error = abs(body_norm - world_norm) / params.gravity_m_s2
     trusted = norm_error < 0.5 * params.norm_gate_fraction
-    if not velocity.fused:  # between pairs: no reading, but the reference the last one gave still holds for the bias feedback
-        return GravityReading(held, None, False, trusted, None)
+    if not velocity.fused:
+        # Between pairs no reading. While the vehicle holds still the bias feedback learns each tick's (magnetometer)
+        # correction as without GNSS; in motion only the ticks that measured the tilt teach it: learning every tick
+        # let the bias run away in the JSBSim flight's sustained turns (1.8 deg/s off while reporting 0.17).
+        return GravityReading(held, None, False, trusted and not velocity.moving, None)
     aiding = (("aiding", "gnss" if v.vertical else "gnss_horizontal"),)
     if norm_error > params.norm_gate_fraction:
         return GravityReading(held, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm", values=aiding))
