@@ -176,8 +176,10 @@ class VelocityState:
     """The same low-pass of ``g e_z - a`` (NED), ``a`` the GNSS acceleration over the same intervals."""
     vertical: bool = True
     """The last pair's vertical acceleration was measured (else taken as zero in the low-pass)."""
-    noise_m_s: float = 0.0
-    """Velocity noise of the stream of the last pair."""
+    noise_var_m2_s4: float = 0.0
+    """Variance (per axis) of the GNSS velocity noise left in the world low-pass, (m/s^2)^2."""
+    noise_cov_m2_s3: float = 0.0
+    """Its covariance with the last fix's velocity noise (the next difference shares that fix), m^2/s^3."""
     last_fused_ns: int | None = None
     """The tick that last fused a pair into the low-pass."""
 

@@ -44,8 +44,7 @@ world vector ``w = lp(g e_z - a)``" (Davenport's K,
 :func:`core.observations.vector_exponent`), which in a turn (``w`` not
 vertical) also informs the heading, as it physically does; rotating ``a``
 into S by the estimate instead would turn every heading error ``psi`` into
-a tilt error ``psi |a_h| / g``. The low-pass starts from the estimate
-(``w = g e_z`` and its view in S), so the first pairs cannot jolt it.
+a tilt error ``psi |a_h| / g``.
 
 **Horizontal-only velocity** (GPS_RAW_INT: ground speed and course). The
 vertical acceleration is then unknown, and nothing is assumed about it:
@@ -67,11 +66,15 @@ velocity is preferred when there is one.
 (tau/T)^2``, :mod:`fuser.model.gravity`) plus the GNSS velocity noise
 differentiated and low-passed: white noise ``s`` per axis (the receiver's
 speed accuracy where the message has one, else ``gnss.velocity_noise_m_s``)
-differenced and low-passed leaves ``s sqrt(2 / (2 - alpha)) / tau <=
-sqrt(2) s / tau`` on the low-passed acceleration (the differences
-telescope), a direction error of that over ``|w|`` per axis, correlated over
-``tau`` and so counted once per ``tau`` (``sqrt(tau / T)`` per reading, as
-the magnetometer's correlated error is).
+differenced over ``T`` and low-passed, ``y = (1 - alpha) y + (alpha / T)(n1 -
+n0)``, whose variance is propagated with the covariance two differences
+sharing a fix have (they telescope: in the steady state ``2 s^2 / (tau^2 (2 -
+alpha))``, a tenth of the raw difference's at 10 Hz and ``tau`` = 3 s); its
+direction error, that over ``|w|``, is correlated over ``tau`` and so
+counted once per ``tau`` (``sqrt(tau / T)`` per reading, as the
+magnetometer's correlated error is). The low-pass starts from the first
+pair itself, raw noise and all (not from the estimate: after an outage in a
+turn the estimate is what is wrong), so the first readings count for little.
 
 **Faults**, each in the ``velocity`` diagnostics and counted: a message
 without a fix (``no_fix``); a receiver repeating its last solution
@@ -212,7 +215,7 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
     max_age_ns = round(params.max_age_s * 1e9)
     streams = {s.key: s for s in state.streams}
     body_lp, world_lp = state.body_lp_m_s2, state.world_lp_m_s2
-    vertical, noise, fused = state.vertical, state.noise_m_s, False
+    vertical, noise_var, noise_cov, fused = state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3, False
     if not may_aid:
         body_lp = world_lp = None
     diagnostics: list[UpdateDiagnostic] = []
@@ -256,16 +259,21 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
         if _selected(list(streams.values()), measured, max_age_ns) != key:
             diagnostics.append(UpdateDiagnostic("velocity", "gated", "unselected", test_ratio=ratio, values=values))
             continue
+        alpha = min(1.0, span_s / tau_s)
         if body_lp is None or world_lp is None:
             if not may_aid:
                 diagnostics.append(UpdateDiagnostic("velocity", "gated", "unconverged", test_ratio=ratio, values=values))
                 continue
-            world_lp = g * DOWN_NED  # start from the estimate: no mean acceleration, gravity where the estimate has it
-            body_lp = s_to_ned.T @ world_lp
-        alpha = min(1.0, span_s / tau_s)
+            alpha, noise_var, noise_cov = 1.0, 0.0, 0.0  # the low-pass starts from this pair: unbiased, its noise counted
+            body_lp = world_lp = np.zeros(3)
         body_lp = body_lp + alpha * (-force - body_lp)
         world_lp = world_lp + alpha * (g * DOWN_NED - accel - world_lp)
-        vertical, noise, fused = both_vertical, noise_m_s, True
+        # the velocity noise in the low-pass: y = (1 - a) y + (a / T)(n1 - n0), n0 shared with the previous difference
+        gain = alpha / span_s
+        noise_var = ((1.0 - alpha) ** 2 * noise_var + gain**2 * (noise_m_s**2 + previous.noise_m_s**2)
+                     - 2.0 * (1.0 - alpha) * gain * noise_cov)
+        noise_cov = gain * noise_m_s**2
+        vertical, fused = both_vertical, True
         diagnostics.append(UpdateDiagnostic("velocity", "fused", test_ratio=ratio, values=values))
     last = tick_ns if fused else state.last_fused_ns
     interval = dt_ns * 1e-9 if state.last_fused_ns is None or not fused else (tick_ns - state.last_fused_ns) * 1e-9
@@ -279,7 +287,7 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
     newest = max((s.measured_ns for s in kept), default=None)
     moving = newest is not None and any(newest - s.measured_ns <= max_age_ns and math.hypot(*s.vel_ned_m_s) > params.moving_speed_m_s
                                         for s in kept)
-    after = VelocityState(kept, knots, body_lp, world_lp, vertical, noise, last)
+    after = VelocityState(kept, knots, body_lp, world_lp, vertical, noise_var, noise_cov, last)
     return VelocityTrack(after, active, fused and active, interval, moving, tuple(diagnostics), events)
 
 
@@ -315,7 +323,7 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     innovation = math.acos(max(-1.0, min(1.0, float(predicted_world @ world) / (body_norm * world_norm))))
     interval = velocity.interval_s
     correction = math.sqrt(tick.process_variance_rad2 * interval / tick.dt_s) * tau_s / max(interval, 1e-6)
-    noise = math.sqrt(2.0) * v.noise_m_s / tau_s / world_norm
+    noise = math.sqrt(max(v.noise_var_m2_s4, 0.0)) / world_norm
     sigma = math.sqrt(correction**2 + noise**2 * max(tau_s / interval, 1.0))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, interval)
     diagnostic = UpdateDiagnostic.of("gravity", verdict.outcome, "innovation" if verdict.outcome == "gated" else "", innovation, sigma,
