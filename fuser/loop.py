@@ -24,7 +24,9 @@ gets what its jitter needs. It is measured again once a second of the
 receive timeline (between ticks, so that no estimate waits for it), raised at
 once by a sample later than it (a link that slows down), and starts at the
 cap until a stream has shown its lateness (``_MIN_SAMPLES`` samples), so the
-first seconds of a slow link are not lost either. It is a function of the
+first seconds of a slow link are not lost either. It comes down by at most
+half a tick period per tick: the ticks it held back run at up to twice the
+rate, not in one burst. It is a function of the
 inputs only, so a replay reproduces it. Because the offset only ever
 decreases, samples held up at start-up (a stall under load) are placed late
 and counted as late against the first offset, never the later ones: the
@@ -151,6 +153,9 @@ class FusionLoop:
         self.period_ns = round(1e9 / config.rate_hz)
         self.timeline = Timeline(config.latency, config.latency_ms)
         """Each stream's clock offset and the wait for samples in flight."""
+        self._wait_ns = self.timeline.wait_ns
+        """The wait in force: up at once to the timeline's, down by at most half a period per tick (the ticks it
+        held back then run at up to twice the rate, each on time for the wait it ran under)."""
         self.max_catch_up_ticks = max_catch_up_ticks
         self.counters: Counter[str] = Counter()
         self._pending: list[_Pending] = []
@@ -166,7 +171,7 @@ class FusionLoop:
     @property
     def latency_ns(self) -> int:
         """How long a tick waits after its time for samples in flight, now (:class:`Timeline`)."""
-        return self.timeline.wait_ns
+        return self._wait_ns
 
     @property
     def next_due_ns(self) -> int | None:
@@ -187,6 +192,7 @@ class FusionLoop:
                 self.counters["other_vehicle"] += 1
                 return
         placed = self.timeline.place(stream_of(sample), sample.t_ns, receive_ns)
+        self._wait_ns = max(self._wait_ns, self.timeline.wait_ns)
         if self._last_tick is not None and placed <= self._last_tick:
             self.counters["late"] += 1
             return
@@ -208,6 +214,7 @@ class FusionLoop:
                 self._next_tick += skipped * self.period_ns
             out.append(self._tick(self._next_tick))
             self._next_tick += self.period_ns
+            self._wait_ns = max(self.timeline.wait_ns, self._wait_ns - self.period_ns // 2)
         return out
 
     def flush(self) -> list[Estimate]:
