@@ -51,9 +51,8 @@ built here from it (:func:`estimate_of`).
 
 from __future__ import annotations
 
-import heapq
 import math
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right, insort
 from collections import Counter, deque
 from typing import Any, Mapping
 
@@ -92,11 +91,42 @@ _MEASURE_EVERY_NS = 1_000_000_000
 """The wait is measured again once per second of the receive timeline."""
 
 
+class _Lateness:
+    """One stream's recent ``receive_ns - t_ns``, in arrival order (to expire) and sorted (for the quantile)."""
+
+    __slots__ = ("arrivals", "sorted")
+
+    def __init__(self) -> None:
+        self.arrivals: deque[tuple[int, int]] = deque()
+        self.sorted: list[int] = []
+
+    def add(self, receive_ns: int, latency_ns: int, window_ns: int) -> None:
+        self.arrivals.append((receive_ns, latency_ns))
+        insort(self.sorted, latency_ns)
+        self.expire(receive_ns - window_ns)
+        if len(self.arrivals) > _MAX_KEPT:
+            self._drop_oldest()
+
+    def expire(self, before_ns: int) -> None:
+        """Forget the samples received before ``before_ns``."""
+        while self.arrivals and self.arrivals[0][0] < before_ns:
+            self._drop_oldest()
+
+    def _drop_oldest(self) -> None:
+        _, latency = self.arrivals.popleft()
+        del self.sorted[bisect_left(self.sorted, latency)]
+
+    def quantile(self, q: float) -> int:
+        """The ``q`` quantile (the higher of two neighbours): the sample ``ceil(q (n - 1))`` in sorted order."""
+        return self.sorted[math.ceil(q * (len(self.sorted) - 1))]
+
+
 class Timeline:
     """Each stream's clock offset (where its samples are placed) and the wait its lateness asks for.
 
     :meth:`place` puts a sample on the loop's timeline; :attr:`wait_ns` is how long a tick waits for samples
-    in flight (module docstring), between ``floor_ns`` and ``cap_ns``. Deterministic in what it is given.
+    in flight (module docstring), between ``floor_ns`` and ``cap_ns``. Deterministic in what it is given; a
+    sample costs a sorted insertion (microseconds), the measurement once a second a look-up per stream.
     """
 
     def __init__(self, params: LatencySettings, floor_ms: float) -> None:
@@ -105,11 +135,11 @@ class Timeline:
         self.cap_ns = max(self.floor_ns, round(params.max_ms * 1e6))
         self.window_ns = round(params.window_s * 1e9)
         self.wait_ns = self.cap_ns if params.adaptive else self.floor_ns
-        """The wait in force."""
+        """The wait the lateness asks for."""
         self.offsets: dict[tuple, int] = {}
         """Per stream, in order of first arrival: the smallest receive - send time."""
-        self._latency: dict[tuple, deque[tuple[int, int]]] = {}
-        """Per stream: (receive_ns, receive_ns - t_ns) of its samples within the window."""
+        self._latency: dict[tuple, _Lateness] = {}
+        """Per stream: its samples within the window."""
         self._next_measure_ns: int | None = None
 
     def place(self, stream: tuple, t_ns: int, receive_ns: int) -> int:
@@ -119,8 +149,8 @@ class Timeline:
         if self.params.adaptive:
             kept = self._latency.get(stream)
             if kept is None:
-                kept = self._latency[stream] = deque(maxlen=_MAX_KEPT)
-            kept.append((receive_ns, latency))
+                kept = self._latency[stream] = _Lateness()
+            kept.add(receive_ns, latency, self.window_ns)
             if self._next_measure_ns is None or receive_ns >= self._next_measure_ns:
                 self._next_measure_ns = receive_ns + _MEASURE_EVERY_NS
                 self.wait_ns = self._measured(receive_ns)
@@ -132,15 +162,13 @@ class Timeline:
         """The largest of every recent stream's lateness quantile, within the floor and the cap."""
         wait = self.floor_ns
         for stream, kept in list(self._latency.items()):
-            while kept and kept[0][0] < now_ns - self.window_ns:
-                kept.popleft()
-            if not kept:
+            kept.expire(now_ns - self.window_ns)
+            if not kept.arrivals:
                 del self._latency[stream]
                 continue
-            if len(kept) < _MIN_SAMPLES:
+            if len(kept.arrivals) < _MIN_SAMPLES:
                 return self.cap_ns
-            k = len(kept) - math.ceil(self.params.quantile * (len(kept) - 1))  # the quantile is the k-th largest
-            wait = max(wait, heapq.nlargest(k, (v for _, v in kept))[-1] - self.offsets[stream])
+            wait = max(wait, kept.quantile(self.params.quantile) - self.offsets[stream])
         return min(wait, self.cap_ns)
 
 
@@ -154,8 +182,8 @@ class FusionLoop:
         self.timeline = Timeline(config.latency, config.latency_ms)
         """Each stream's clock offset and the wait for samples in flight."""
         self._wait_ns = self.timeline.wait_ns
-        """The wait in force: up at once to the timeline's, down by at most half a period per tick (the ticks it
-        held back then run at up to twice the rate, each on time for the wait it ran under)."""
+        """The wait the last tick ran under: up at once to the timeline's, down by at most half a period per tick
+        (the ticks it held back then run at up to twice the rate, each on time for the wait it ran under)."""
         self.max_catch_up_ticks = max_catch_up_ticks
         self.counters: Counter[str] = Counter()
         self._pending: list[_Pending] = []
@@ -170,13 +198,17 @@ class FusionLoop:
 
     @property
     def latency_ns(self) -> int:
-        """How long a tick waits after its time for samples in flight, now (:class:`Timeline`)."""
+        """How long the last tick waited after its time for samples in flight (:class:`Timeline`)."""
         return self._wait_ns
 
     @property
     def next_due_ns(self) -> int | None:
         """Clock time at which the next tick will run, or None before the first sample."""
-        return None if self._next_tick is None else self._next_tick + self.latency_ns
+        return None if self._next_tick is None else self._next_tick + self._next_wait_ns()
+
+    def _next_wait_ns(self) -> int:
+        """The wait of the next tick: the timeline's, or half a period less than the last tick's if that is more."""
+        return max(self.timeline.wait_ns, self._wait_ns - self.period_ns // 2)
 
     def push(self, sample: Sample, receive_ns: int) -> None:
         """Hand a sample to the loop; it is fused by the tick that covers its time."""
@@ -192,7 +224,6 @@ class FusionLoop:
                 self.counters["other_vehicle"] += 1
                 return
         placed = self.timeline.place(stream_of(sample), sample.t_ns, receive_ns)
-        self._wait_ns = max(self._wait_ns, self.timeline.wait_ns)
         if self._last_tick is not None and placed <= self._last_tick:
             self.counters["late"] += 1
             return
@@ -205,23 +236,23 @@ class FusionLoop:
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
         out: list[Estimate] = []
-        while self._next_tick is not None and self._next_tick + self.latency_ns <= now_ns:
-            behind = (now_ns - self.latency_ns - self._next_tick) // self.period_ns
+        while self._next_tick is not None and self._next_tick + (wait := self._next_wait_ns()) <= now_ns:
+            self._wait_ns = wait
+            behind = (now_ns - wait - self._next_tick) // self.period_ns
             if self.max_catch_up_ticks is not None and behind > self.max_catch_up_ticks:
-                skip_to = now_ns - self.latency_ns - self.max_catch_up_ticks * self.period_ns
+                skip_to = now_ns - wait - self.max_catch_up_ticks * self.period_ns
                 skipped = (skip_to - self._next_tick) // self.period_ns
                 self.counters["ticks_skipped"] += skipped
                 self._next_tick += skipped * self.period_ns
             out.append(self._tick(self._next_tick))
             self._next_tick += self.period_ns
-            self._wait_ns = max(self.timeline.wait_ns, self._wait_ns - self.period_ns // 2)
         return out
 
     def flush(self) -> list[Estimate]:
         """Run the ticks that cover every sample still pending (end of a log)."""
         if not self._pending:
             return []
-        return self.advance(max(p[0] for p in self._pending) + self.period_ns + self.latency_ns - 1)
+        return self.advance(max(p[0] for p in self._pending) + self.period_ns + max(self._wait_ns, self.timeline.wait_ns) - 1)
 
     def diagnostics(self) -> dict[str, dict[str, Any]]:
         """The latest diagnostic of each measurement update (with its tick time ``t_ns``), for the status."""

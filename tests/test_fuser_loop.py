@@ -176,7 +176,7 @@ def test_a_link_that_slows_down_raises_the_wait_at_once():
     t = events[-1][0] + 2_500_000
     loop.advance(t + 41_000_000)
     loop.push(imu(t), t + 41_000_000)  # 40 ms later than the stream's least latency
-    assert loop.latency_ns == 40_000_000
+    assert loop.timeline.wait_ns == 40_000_000 and loop.next_due_ns == loop._next_tick + 40_000_000
 
 
 def test_a_fixed_wait_longer_than_the_cap_wins():
