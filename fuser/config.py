@@ -285,6 +285,9 @@ class AccelSettings(Settings):
     """Gate when | |f| - g | / g of the low-passed specific force exceeds this (manoeuvres, impacts)."""
     gravity_m_s2: Annotated[float, Range(gt=0, unit="m/s^2")] = 9.80665
     """Local gravity: the norm the gate expects."""
+    unaided_norm_tolerance_fraction: Annotated[float, Range(ge=0)] = 0.03
+    """Without GNSS velocity, the low-passed specific force's norm beyond ``g (1 + this)`` is read as a horizontal
+    acceleration the filter cannot see, and the published tilt widened by its angle (:mod:`fuser.model.unaided`)."""
 
 
 @dataclass(frozen=True)

@@ -114,11 +114,13 @@ def model_error_variances(
     return math.radians(params.tilt_deg) ** 2 + rate, floor + rate
 
 
-def published(params: ModelErrorSettings, state: Bingham, rate_sq: float, heading_floor: bool, isotropic_rad2: float = 0.0) -> Bingham:
-    """The published state: ``state`` with the model error at ``rate_sq`` (:func:`with_model_error`) and a further
-    independent error of per-axis variance ``isotropic_rad2`` on every axis (the held gyro rate's, for one)."""
+def published(params: ModelErrorSettings, state: Bingham, rate_sq: float, heading_floor: bool, isotropic_rad2: float = 0.0,
+              unseen_rad2: tuple[float, float] = (0.0, 0.0)) -> Bingham:
+    """The published state: ``state`` with the model error at ``rate_sq`` (:func:`with_model_error`), a further
+    independent error of per-axis variance ``isotropic_rad2`` on every axis (the held gyro rate's, for one) and
+    ``unseen_rad2`` (tilt, heading) of an acceleration the filter cannot see (:mod:`fuser.model.unaided`)."""
     tilt, heading = model_error_variances(params, rate_sq, heading_floor)
-    tilt, heading = tilt + isotropic_rad2, heading + isotropic_rad2
+    tilt, heading = tilt + isotropic_rad2 + unseen_rad2[0], heading + isotropic_rad2 + unseen_rad2[1]
     if tilt == 0.0 and heading == 0.0:
         return state
     return with_model_error(state, tilt, heading)

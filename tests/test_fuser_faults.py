@@ -128,7 +128,8 @@ def test_link_outage_garbage_subscriber_restart_and_recorder_kill(tmp_path: Path
     published = [e.to_dict() for e in tap.estimates]
     err = errors_of(published, truth)
     rel = (err.t_ns - t0) / 1e9
-    status_after_kill = [s for t, s in tap.status if t > killed_at + 0.1]
+    # received 1.5 s after the kill: a status sent once a second, built before the kill, may arrive after it under load
+    status_after_kill = [s for t, s in tap.status if t > killed_at + 1.5]
     final = tap.status[-1][1]
     mav = next(v for k, v in final["sources"].items() if k.startswith("mavlink:"))
     dcan = next(v for k, v in final["sources"].items() if k.startswith("can:"))

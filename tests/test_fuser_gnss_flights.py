@@ -8,7 +8,7 @@ coordinated 30-deg turn). RMS after the first 5 s. The bounds are the issue's (m
 aggressive 4 deg, fixed wing tilt 2 and total 3 deg); measured on these seeds: 0.7, 1.3, 1.0 / 2.3 deg.
 
 Coverage: the truth inside the 90 % credible region (:func:`fuser.evaluate.credible_level`) on 85-95 % of the
-ticks. It is at least 85 %: the published uncertainty is not overconfident with aiding (without it, 3-52 %).
+ticks. It is at least 85 %: the published uncertainty is not overconfident with aiding (without it, 30-74 %: the unseen turn, below).
 It is above 95 % on these flights (100 %): the published heading uncertainty keeps the model error's 3.25-deg
 floor and the magnetometer's 2-deg correlated error, both fitted on BROAD's distorted fields, while the
 simulator's magnetometer reads the field exactly, and the tilt's keeps the gyro bias floor's process noise.
@@ -79,9 +79,22 @@ def test_without_gnss_the_same_flights_miss_them(flown):
 
 
 def test_with_aiding_the_reported_uncertainty_is_not_overconfident(flown):
-    _, (_, level), (_, level_alone) = flown
+    _, (_, level), _ = flown
     assert np.mean(level <= 0.9) >= 0.85, np.mean(level <= 0.9)
-    assert np.mean(level_alone <= 0.9) < 0.85  # without GNSS it claims to be sure in the turns and is not
+
+
+def test_without_gnss_the_unseen_turn_widens_the_uncertainty(flown):
+    """Without GNSS the accelerometer takes the fixed wing's lift in a sustained turn for gravity and nothing in the
+    innovations shows it; the low-passed specific force's excess norm does (fuser/model/unaided.py), and the published
+    Bingham widens. Measured, seed 0: the 90 % region holds the truth on 74 % of the ticks, 19.1 deg RMS off reporting
+    42.8 (before the widening: 21 %, reporting 11.4). Not met for the multirotor (57 %, 4.35 deg off reporting 5.1;
+    aggressive: 30 %, 6.2 off reporting 4.2): its tilt error builds in manoeuvres whose low-passed excess norm stays
+    within the accelerometer's tolerance (``accel.unaided_norm_tolerance_fraction``, 3 %)."""
+    name, _, (alone, level_alone) = flown
+    if name != "fixedwing":
+        pytest.xfail(f"{name} without GNSS: under-covered (docstring)")
+    assert np.mean(level_alone <= 0.9) >= 0.7, np.mean(level_alone <= 0.9)
+    assert alone["uncertainty"] >= alone["total"], alone
 
 
 @pytest.mark.xfail(strict=True, reason="over-covered (100 %): the heading floor and the bias floor are fitted on BROAD's "

@@ -55,6 +55,7 @@ from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
 from fuser.model.state import FilterState, GyroState, HeadingState, RestState, initial_state
 from fuser.model.tick import TickContext, TickInput, TickResult
+from fuser.model.unaided import excess_norm_sq_m2_s4, followed, unseen_variances_rad2
 from fuser.model.velocity import track_velocity, update_gravity_aided
 
 __all__ = ["FusionModel"]
@@ -142,7 +143,7 @@ class FusionModel:
         # 2. updates, gated against the prediction; their exponents add up to one product
         belief, exponent = prediction.attitude, np.zeros((4, 4))
         diagnostics: list[UpdateDiagnostic] = []
-        rest, heading, accel_trusted = s.rest, s.heading, False
+        rest, heading, accel_trusted, excess = s.rest, s.heading, False, s.unaided_excess_m2_s4
         interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
         if field_diagnostic is not None:
             diagnostics.append(field_diagnostic)
@@ -163,6 +164,9 @@ class FusionModel:
             else:
                 reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval)
             gravity, accel_trusted = reading.state, reading.trusted
+            # an acceleration the unaided accelerometer cannot tell from gravity, as far as the update follows it
+            target = 0.0 if velocity.active else excess_norm_sq_m2_s4(cfg.accel, gravity.accel_lp_m_s2)
+            excess = followed(cfg.accel, excess, target, interval, tau)
             if reading.diagnostic is not None:
                 diagnostics.append(reading.diagnostic)
             if reading.exponent is not None:
@@ -198,13 +202,15 @@ class FusionModel:
             learnt_over = velocity.interval_s if velocity.active and velocity.moving else interval
             bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, learnt_over)
 
-        # 4. publish: widened by the model error, the error of a rate held since the last sample, and an IMU kept out
+        # 4. publish: widened by the model error, the error of a rate held since the last sample, an IMU kept out and,
+        # without GNSS aiding, the acceleration the accelerometer's norm reveals
         widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
-        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening)
+        unseen_rad2 = unseen_variances_rad2(cfg.accel, excess, field.field_ned_gauss if cfg.mag.enabled else None)
+        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening, unseen_rad2)
 
         self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
                                   rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
-                                  model_error=error_state, velocity=velocity.state, field=field)
+                                  model_error=error_state, velocity=velocity.state, field=field, unaided_excess_m2_s4=excess)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
         return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))

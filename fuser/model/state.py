@@ -201,6 +201,9 @@ class FilterState:
     velocity: VelocityState = VelocityState()
     field: FieldState = FieldState.of(MagSettings())
     """The reference field (the default settings' until :func:`initial_state` gives the configured one)."""
+    unaided_excess_m2_s4: float = 0.0
+    """The low-passed specific force's signed excess norm ``|f|^2 - g^2``, as far as the estimate has followed it:
+    an acceleration the unaided accelerometer cannot tell from gravity (:mod:`fuser.model.unaided`)."""
 
 
 def initial_state(config: FuserConfig) -> FilterState:

@@ -1,0 +1,83 @@
+"""What the accelerometer cannot tell from gravity without velocity aiding: the acceleration its norm reveals.
+
+Without GNSS velocity (:mod:`fuser.model.velocity`) the gravity update takes
+the low-passed specific force for down (:mod:`fuser.model.gravity`). In a
+sustained level turn that low-pass does not average the centripetal
+acceleration out: in a coordinated turn ``f = a_c - g`` with ``a_c``
+horizontal, so the filter follows a down that is ``atan(|a_c| / g)`` off (the
+bank angle, tens of degrees in a fixed-wing loiter), and nothing in its
+innovations shows it: the accelerometer and the gyro agree. What does show it
+is the norm: ``|f|^2 - g^2 = |a_c|^2`` for a horizontal acceleration.
+
+A vertical acceleration ``a_v`` changes the norm too, but linearly and with
+its sign (``|f|^2 - g^2 ~ -2 g a_v``), and no vehicle sustains one (a climb
+rate cannot grow for ever), while a horizontal one adds a positive square
+that a turn sustains. So the *signed* excess ``|f_lp|^2 - g^2`` of the
+low-passed specific force is followed as the estimate follows the low-pass
+(a first-order lag of the tilt time constant, gated readings included: a
+reading gated for long is re-anchored to; decaying the same way while GNSS
+velocity aids), so that the up-and-down of a hand-held or hovering sensor averages out and a
+turn's steady excess remains. Only then is it read as a horizontal
+acceleration, beyond a tolerance for the accelerometer's own scale error
+(``accel.unaided_norm_tolerance_fraction``; a sensor 1 % off would otherwise
+read as an 8 deg turn, the angle growing as the square root of the excess):
+turns banked less than ``acos(1 / (1 + tolerance))`` stay unseen (14 deg at
+the default 3 %).
+
+The published Bingham is widened in tilt by that angle
+(:func:`fuser.model_error.published`), and in heading by what the tilt error
+does to the magnetometer's heading: a down wrong by ``d`` about a horizontal
+axis at ``a`` to the field's horizontal turns the field's projection by
+``d tan(I) sin(a)`` (``I`` the field's inclination; ``tan I`` = 2 in central
+Europe), ``d tan(I) / sqrt(2)`` in RMS over the axis, which the turn's
+direction sets and the model does not know. An estimate that cannot see the
+turn does not claim to.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fuser.config import AccelSettings
+
+__all__ = ["excess_norm_sq_m2_s4", "followed", "unseen_variances_rad2"]
+
+
+def excess_norm_sq_m2_s4(params: AccelSettings, lowpassed_m_s2: np.ndarray | None) -> float:
+    """``|f_lp|^2 - g^2`` of the low-passed specific force, signed (0 with no low-pass yet)."""
+    if lowpassed_m_s2 is None:
+        return 0.0
+    return float(lowpassed_m_s2 @ lowpassed_m_s2) - params.gravity_m_s2**2
+
+
+def followed(params: AccelSettings, excess_m2_s4: float, target_m2_s4: float, interval_s: float, tau_s: float) -> float:
+    """The followed excess after ``interval_s`` more of following ``target_m2_s4`` with the tilt time constant
+    ``tau_s`` (a first-order lag, as the estimate follows its low-pass), never below minus the tolerance: a norm
+    persistently low (a scale error, the strapdown frame turning with an unlearnt bias) must not hide a turn."""
+    lagged = excess_m2_s4 + min(1.0, interval_s / tau_s) * (target_m2_s4 - excess_m2_s4)
+    return max(lagged, -_allowed_m2_s4(params))
+
+
+def _allowed_m2_s4(params: AccelSettings) -> float:
+    """The excess ``|f|^2 - g^2`` the accelerometer's own scale error may make: ``((1 + tolerance)^2 - 1) g^2``."""
+    return ((1.0 + params.unaided_norm_tolerance_fraction) ** 2 - 1.0) * params.gravity_m_s2**2
+
+
+def unseen_variances_rad2(params: AccelSettings, excess_m2_s4: float,
+                          field_ned_gauss: tuple[float, float, float] | None) -> tuple[float, float]:
+    """(tilt, heading) variances, rad^2 per axis, of the down the followed excess, read as a horizontal
+    acceleration beyond the tolerance, biases; the heading's through the field's inclination, ``tan(I)^2 / 2``
+    times the tilt's (``field_ned_gauss`` None: no magnetometer heading, none)."""
+    g = params.gravity_m_s2
+    horizontal_sq_m2_s4 = excess_m2_s4 - _allowed_m2_s4(params)
+    if horizontal_sq_m2_s4 <= 0.0:
+        return 0.0, 0.0
+    tilt_rad2 = math.atan2(math.sqrt(horizontal_sq_m2_s4), g) ** 2
+    if field_ned_gauss is None:
+        return tilt_rad2, 0.0
+    north, east, down = field_ned_gauss
+    field_horizontal_sq = north * north + east * east
+    tan_sq = down * down / field_horizontal_sq if field_horizontal_sq > 0.0 else math.inf
+    return tilt_rad2, min(0.5 * tilt_rad2 * tan_sq, math.pi**2)
