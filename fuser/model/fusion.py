@@ -164,7 +164,7 @@ class FusionModel:
             else:
                 reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval)
             gravity, accel_trusted = reading.state, reading.trusted
-            # an acceleration the unaided accelerometer cannot tell from gravity, as far as the update follows it
+            # an acceleration the unaided accelerometer cannot tell from gravity, as far as the estimate follows it
             target = 0.0 if velocity.active else excess_norm_sq_m2_s4(cfg.accel, gravity.accel_lp_m_s2)
             excess = followed(cfg.accel, excess, target, interval, tau)
             if reading.diagnostic is not None:
@@ -192,6 +192,8 @@ class FusionModel:
             for e in a.exponents:
                 exponent = exponent + e
             diagnostics += a.diagnostics
+            if a.exponents:  # the autopilot's down, fused: what the accelerometer could not see is its estimator's
+                excess = 0.0
         elif attitudes:
             events += ["attitude_unused"] * len(attitudes)
         posterior = _multiplied(belief, exponent)

@@ -16,7 +16,8 @@ that a turn sustains. So the *signed* excess ``|f_lp|^2 - g^2`` of the
 low-passed specific force is followed as the estimate follows the low-pass
 (a first-order lag of the tilt time constant, gated readings included: a
 reading gated for long is re-anchored to; decaying the same way while GNSS
-velocity aids), so that the up-and-down of a hand-held or hovering sensor averages out and a
+velocity aids; none once the autopilot's attitude is fused, whose down is
+its own estimator's), so that the up-and-down of a hand-held or hovering sensor averages out and a
 turn's steady excess remains. Only then is it read as a horizontal
 acceleration, beyond a tolerance for the accelerometer's own scale error
 (``accel.unaided_norm_tolerance_fraction``; a sensor 1 % off would otherwise
