@@ -141,10 +141,11 @@ def test_a_radio_link_waits_for_its_jitter_and_loses_under_one_percent():
     arrival = np.ceil((t + 25e6 + rng.gamma(2.0, 12e6, n)) / 20e6) * 20e6 + rng.uniform(0, 2e6, n)
     arrival = np.maximum.accumulate(arrival).astype(np.int64)
     events = [(int(a), int(r), imu(int(a))) for a, r in zip(t, arrival)]
-    fixed = FusionLoop(FuserConfig().replace(latency={"adaptive": False}))
+    # a 20 Hz loop: twice the link's rate is enough to test the wait, and 300 s of flight stay quick
+    fixed = FusionLoop(FuserConfig(rate_hz=20.0).replace(latency={"adaptive": False}))
     _feed(fixed, events)
     assert fixed.counters["late"] > 0.5 * n
-    loop = FusionLoop(FuserConfig())
+    loop = FusionLoop(FuserConfig(rate_hz=20.0))
     waits, _ = _feed(loop, events)
     assert loop.counters["late"] <= 0.01 * n
     jitter = (arrival - t) - (arrival - t).min()
