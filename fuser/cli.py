@@ -186,18 +186,23 @@ def _link(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--dialect", metavar="NAME", help="pymavlink dialect (default: ardupilotmega)")
 
 
-def _add_sim(sub: Any) -> None:
-    p = sub.add_parser("sim", help="fly the simulated vehicle through the live loop (no drone needed)",
-                       description="Fly the built-in simulated multirotor (hover, turns, aggressive manoeuvres, a flip) "
-                                   "through the real decoders and the live loop; publish on zenoh, record MCAP with the truth, "
-                                   "and print the error against the truth.")
-    p.set_defaults(handler=_cmd_sim)
+def _live_loop_options(p: argparse.ArgumentParser) -> None:
+    """The options of a subcommand that runs the live loop (``sim``, ``run``): fusion, vehicle, zenoh, outputs."""
     _verbosity(p)
     _config_file(p)
     _fusion_options(p)
     _vehicle_option(p)
     _zenoh_publish_options(p)
     add_output_options(p)
+
+
+def _add_sim(sub: Any) -> None:
+    p = sub.add_parser("sim", help="fly the simulated vehicle through the live loop (no drone needed)",
+                       description="Fly the built-in simulated multirotor (hover, turns, aggressive manoeuvres, a flip) "
+                                   "through the real decoders and the live loop; publish on zenoh, record MCAP with the truth, "
+                                   "and print the error against the truth.")
+    p.set_defaults(handler=_cmd_sim)
+    _live_loop_options(p)
     p.add_argument("--scenario", choices=("full",) + tuple(SCENARIOS), default="full",
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
                         + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()).replace("%", "%%"))  # argparse %-formats help
@@ -224,12 +229,7 @@ def _add_run(sub: Any) -> None:
                                    "tcp:127.0.0.1:5760, /dev/ttyUSB0 (with --baud). CAN is INTERFACE:CHANNEL for python-can: "
                                    "socketcan:can0, slcan:/dev/ttyACM0, virtual:test.")
     p.set_defaults(handler=_cmd_run)
-    _verbosity(p)
-    _config_file(p)
-    _fusion_options(p)
-    _vehicle_option(p)
-    _zenoh_publish_options(p)
-    add_output_options(p)
+    _live_loop_options(p)
     _link(p)
     g = p.add_argument_group("inputs")
     g.add_argument("--mavlink", action="append", default=[], type=_mavlink_connection, metavar="CONN", help="MAVLink connection (repeatable)")
