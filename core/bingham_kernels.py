@@ -24,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["product_parameters", "rotated_left", "rotated_right", "sorted_concentrations", "symmetric_eigh"]
+__all__ = ["down_alignment_sq", "product_parameters", "rotated_left", "rotated_right", "sorted_concentrations", "symmetric_eigh"]
 
 _MAX_SWEEPS = 60
 
@@ -174,3 +174,16 @@ def sorted_concentrations(M: np.ndarray, z3: np.ndarray) -> tuple:
     for k in range(4):
         out[k, 3] = M[k, 3]
     return out, Z, ok
+
+
+@njit(cache=True, nogil=True)
+def down_alignment_sq(M: np.ndarray) -> np.ndarray:
+    """Squared cosine, per principal direction ``m_i`` (``i < 3``), between the body axis ``vec(mode^* m_i)``
+    and world down (NED ``z``) seen in the body, ``vec(mode^* k mode)``: left-multiplying by ``mode^*`` is
+    orthogonal, so it is ``(m_i . (k mode))^2``, with ``k (x) mode = (-m_z, -m_y, m_x, m_w)`` for the mode ``M[:, 3]``."""
+    down = (-M[3, 3], -M[2, 3], M[1, 3], M[0, 3])
+    out = np.empty(3)
+    for i in range(3):
+        cos = down[0] * M[0, i] + down[1] * M[1, i] + down[2] * M[2, i] + down[3] * M[3, i]
+        out[i] = cos * cos
+    return out

@@ -30,6 +30,7 @@ from numba import njit
 
 from core import quaternion as quat
 from core.bingham import Bingham
+from core.bingham_kernels import down_alignment_sq
 from fuser.config import ModelErrorSettings
 
 __all__ = ["ModelErrorState", "model_error_variances", "observe_rate", "published", "widened_concentrations", "with_model_error"]
@@ -53,13 +54,11 @@ def widened_concentrations(M: np.ndarray, Z: np.ndarray, tilt_variance, heading_
 
 @njit(cache=True, nogil=True)
 def _widened_one(M: np.ndarray, Z: np.ndarray, tilt_variance: float, heading_variance: float) -> np.ndarray:
-    """:func:`widened_concentrations` of one state, compiled (the per-tick case): world down in the body,
-    ``k (x) mode = (-m_z, -m_y, m_x, m_w)``, against each principal direction."""
-    down = (-M[3, 3], -M[2, 3], M[1, 3], M[0, 3])
+    """:func:`widened_concentrations` of one state, compiled (the per-tick case)."""
+    along_down = down_alignment_sq(M)
     out = np.empty(3)
     for i in range(3):
-        cos = down[0] * M[0, i] + down[1] * M[1, i] + down[2] * M[2, i] + down[3] * M[3, i]
-        variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * (cos * cos))
+        variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * along_down[i])
         out[i] = Z[i] / (1.0 + 2.0 * abs(Z[i]) * variance)
     return out
 

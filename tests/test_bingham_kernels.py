@@ -15,7 +15,8 @@ from core import quaternion as quat
 from core import saddlepoint
 from core.bingham import Bingham, composition_inertia
 from core.normalization import MIN_MOMENT, fit_dispersion_trusted, moments, moments_trusted
-from core.observations import vector_exponent
+from core.observations import heading_exponent, vector_exponent
+from fuser.model.velocity import tilt_doubt_deg
 from fuser.model_error import _widened_one, widened_concentrations
 
 RNG_SEEDS = range(40)
@@ -196,3 +197,43 @@ def test_widened_one_matches_the_vectorised_widening(seed):
     tilt, heading = 10.0 ** rng.uniform(-8, -2, size=2)
     np.testing.assert_allclose(_widened_one(state.M, state.Z, tilt, heading), widened_concentrations(state.M, state.Z, tilt, heading),
                                rtol=1e-14)
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_down_alignment_and_tilt_variance_match_the_quaternion_forms(seed):
+    rng = np.random.default_rng(seed)
+    state = random_state(rng, 10.0 ** rng.uniform(-2, 9))
+    M = state.M
+    along_down = (quat.multiply(np.array([0.0, 0.0, 0.0, 1.0]), M[:, 3]) @ M[:, :3]) ** 2  # k (x) mode against each m_i
+    np.testing.assert_allclose(kernels.down_alignment_sq(M), along_down, rtol=1e-13, atol=1e-15)
+    moments_ = state.moments()
+    variance = float(4.0 * moments_[:3] @ (1.0 - np.minimum(along_down, 1.0)))
+    assert tilt_doubt_deg(state, "saddlepoint") == pytest.approx(math.degrees(math.sqrt(max(variance, 0.0))), rel=1e-12)
+
+
+def test_tilt_doubt_counts_the_tilt_axes_only():
+    """Closed form at the identity (body axes = world axes, down = body z): E[y_i^2] ~ 1/(2|z_i|), and the tilt
+    variance is 4 E[y^2] summed over the axes other than down."""
+    heading_spread = Bingham.from_mode(quat.IDENTITY, [-1e9, -1e9, -50.0])  # unsure about the heading only
+    tilt_spread = Bingham.from_mode(quat.IDENTITY, [-1e9, -50.0, -1e9])  # unsure about pitch only
+    assert tilt_doubt_deg(heading_spread, "saddlepoint") == pytest.approx(math.degrees(math.sqrt(4.0 * 2 * 0.5e-9)), rel=0.02)
+    assert tilt_doubt_deg(tilt_spread, "saddlepoint") == pytest.approx(math.degrees(math.sqrt(4.0 * (0.01 + 0.5e-9))), rel=0.02)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_davenport_and_heading_exponents_match_the_numpy_forms(seed):
+    rng = np.random.default_rng(seed)
+    b, r, sigma = rng.normal(size=3), rng.normal(size=3), 10.0 ** rng.uniform(-3, 0)
+    bu, ru = b / np.linalg.norm(b), r / np.linalg.norm(r)
+    B = np.outer(ru, bu)  # Davenport's profile matrix, K = [[tr B, z^T], [z, B + B^T - tr(B) I]], z = b x r
+    K = np.block([[np.trace(B), np.cross(bu, ru)[None, :]], [np.cross(bu, ru)[:, None], B + B.T - np.trace(B) * np.eye(3)]])
+    np.testing.assert_allclose(vector_exponent(b, r, sigma), K / sigma**2, rtol=1e-12, atol=1e-12 / sigma**2)
+    q, error = quat.normalize(rng.normal(size=4)), rng.uniform(-math.pi, math.pi)
+    v = quat.multiply(np.array([math.sin(0.5 * error), 0.0, 0.0, -math.cos(0.5 * error)]), q)
+    np.testing.assert_allclose(heading_exponent(q, error, sigma), (-2.0 / sigma**2) * np.outer(v, v), rtol=1e-13, atol=1e-13 / sigma**2)
+
+
+@pytest.mark.parametrize("bad", [np.zeros(3), np.array([math.nan, 0.0, 1.0]), np.array([math.inf, 0.0, 0.0]), np.ones(4)])
+def test_davenport_refuses_what_is_not_a_direction(bad):
+    with pytest.raises(ValueError):
+        vector_exponent(bad, np.array([0.0, 0.0, 1.0]), 0.1)

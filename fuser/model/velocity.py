@@ -99,8 +99,10 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from numba import njit
 
 from core import quaternion as quat
+from core.bingham_kernels import down_alignment_sq
 from core.bingham import Bingham
 from core.normalization import Method
 from core.observations import vector_exponent
@@ -135,9 +137,6 @@ class VelocityTrack:
     events: tuple[str, ...]
 
 
-_DOWN_PURE = np.array([0.0, 0.0, 0.0, 1.0])  # world down (NED z) as a pure quaternion
-
-
 def _norm(v: np.ndarray) -> float:
     return math.sqrt(float(v @ v))
 
@@ -150,11 +149,17 @@ def tilt_doubt_deg(state: Bingham, method: Method) -> float:
     ``1 - cos^2`` of that axis with world down seen in the body, ``cos = m_i . (k mode)`` (as in
     :func:`fuser.model_error.widened_concentrations`). A heading still unknown (6-D, a cold start) does not count.
     """
-    m = state.M
-    moments = state.moments(method)
-    along_down = (quat.multiply(_DOWN_PURE, m[:, 3]) @ m[:, :3]) ** 2
-    variance = float(4.0 * moments[:3] @ (1.0 - np.minimum(along_down, 1.0)))
-    return math.degrees(math.sqrt(max(variance, 0.0)))
+    return math.degrees(math.sqrt(max(_tilt_variance(state.M, state.moments(method)), 0.0)))
+
+
+@njit(cache=True, nogil=True)
+def _tilt_variance(M: np.ndarray, moments: np.ndarray) -> float:
+    """``sum_i 4 E[(m_i . x)^2] (1 - cos_i^2)`` over the three dispersion directions (:func:`tilt_doubt_deg`), compiled."""
+    along_down = down_alignment_sq(M)
+    variance = 0.0
+    for i in range(3):
+        variance += 4.0 * moments[i] * (1.0 - min(along_down[i], 1.0))
+    return variance
 
 
 def _force_at(knots: Sequence[tuple[int, np.ndarray, np.ndarray]], t_ns: int) -> np.ndarray | None:
