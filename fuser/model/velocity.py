@@ -215,7 +215,6 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
     to_s = quat.to_matrix(gravity.q_strapdown)  # body -> S
     force_s = None if accel_body_m_s2 is None else to_s @ accel_body_m_s2
     knots = _knots(params, state, force_s, tick_ns, dt_ns, frame_broken)
-    s_to_ned = quat.to_matrix(predicted_q) @ to_s.T  # S -> NED, by the estimate: for the jump check and the start only
     g = gravity_params.gravity_m_s2
     max_age_ns = round(params.max_age_s * 1e9)
     streams = {s.key: s for s in state.streams}
@@ -247,8 +246,8 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
         accel = (np.asarray(fix.vel_ned_m_s) - np.asarray(previous.vel_ned_m_s)) / span_s
         if not both_vertical:
             accel[2] = 0.0  # unknown: left to the low-pass (module docstring)
-        # the jump check: against the accelerometer's acceleration, rotated by the estimate
-        predicted = s_to_ned @ force + g * DOWN_NED
+        # the jump check: against the accelerometer's acceleration, rotated by the estimate (S -> NED), only when a pair comes
+        predicted = (quat.to_matrix(predicted_q) @ to_s.T) @ force + g * DOWN_NED
         difference = accel - predicted
         if not both_vertical:
             difference[2] = 0.0
