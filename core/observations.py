@@ -63,20 +63,20 @@ def _davenport(b: np.ndarray, r: np.ndarray, sigma: float):
     cx, cy, cz = by * rz - bz * ry, bz * rx - bx * rz, bx * ry - by * rx
     s2 = sigma * sigma
     k = np.empty((4, 4))
-    k[0, 0] = trace
-    k[0, 1] = cx
-    k[0, 2] = cy
-    k[0, 3] = cz
-    k[1, 1] = 2 * rx * bx - trace
-    k[1, 2] = rx * by + ry * bx
-    k[1, 3] = rx * bz + rz * bx
-    k[2, 2] = 2 * ry * by - trace
-    k[2, 3] = ry * bz + rz * by
-    k[3, 3] = 2 * rz * bz - trace
+    k[0, 0] = trace / s2
+    k[0, 1] = cx / s2
+    k[0, 2] = cy / s2
+    k[0, 3] = cz / s2
+    k[1, 1] = (2 * rx * bx - trace) / s2
+    k[1, 2] = (rx * by + ry * bx) / s2
+    k[1, 3] = (rx * bz + rz * bx) / s2
+    k[2, 2] = (2 * ry * by - trace) / s2
+    k[2, 3] = (ry * bz + rz * by) / s2
+    k[3, 3] = (2 * rz * bz - trace) / s2
     for i in range(4):
         for j in range(i):
             k[i, j] = k[j, i]
-    return k / s2
+    return k
 
 
 def vector_likelihood(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> Bingham:

@@ -289,11 +289,13 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
 @njit(cache=True, nogil=True)
 def moments(z: np.ndarray) -> np.ndarray:
     """``E[x_i^2] = (dN/dz_i) / sum_k dN/dz_k`` (:func:`core.normalization.moments`), in one call."""
-    grad = derivatives(z, 1)[1]
+    grad = derivatives(z.copy(), 1)[1]  # a writable copy: the chain below compiles once, for the fit's arrays too
     total = 0.0
     for g in grad:
         total += g
-    return grad / total
+    for i in range(grad.shape[0]):  # loops, not array expressions: a tenth of the compile time
+        grad[i] /= total
+    return grad
 
 
 @njit(cache=True, nogil=True)
@@ -327,10 +329,14 @@ def fit_moments(target: np.ndarray, start: np.ndarray, min_moment: float, tol: f
     for i in range(n):
         t[i] /= total
         log_t[i] = math.log(t[i])
-    if start.shape[0] == 0:
-        z0 = 0.5 / t[n - 1] - 0.5 / t
-    else:
-        z0 = start.copy()
+    z0 = np.empty(n)
+    for i in range(n):
+        z0[i] = 0.5 / t[n - 1] - 0.5 / t[i] if start.shape[0] == 0 else start[i]
     z, m = fit_log_moments(z0, log_t, tol, max_iter)
     order = _stable_order(z)
-    return z[order], m[order]
+    z_sorted = np.empty(n)
+    m_sorted = np.empty(n)
+    for i in range(n):
+        z_sorted[i] = z[order[i]]
+        m_sorted[i] = m[order[i]]
+    return z_sorted, m_sorted
