@@ -32,7 +32,7 @@ both printed.
 from __future__ import annotations
 
 import argparse
-import shutil
+import os
 import statistics
 import subprocess
 import sys
@@ -41,7 +41,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Callable
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(os.environ.get("BENCH_CODE_ROOT") or Path(__file__).resolve().parent.parent)
+"""The tree whose code is measured (``bench_fuser.py --baseline`` sets another revision's)."""
 sys.path.insert(0, str(ROOT))
 
 import core.bingham  # noqa: E402
