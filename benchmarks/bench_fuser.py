@@ -66,7 +66,7 @@ from fuser.record import INPUT_TOPICS, McapRecorder, RawMessage, pose_in_frame, 
 from fuser.replay import replay  # noqa: E402
 from fuser.simulate import run_sim  # noqa: E402
 
-from bench_tick import TICK_TARGET_US, captured_ticks, run_ticks  # noqa: E402
+from bench_tick import TICK_TARGET_US, baseline_tree, captured_ticks, run_ticks  # noqa: E402
 
 REPLAY_TARGET = 20_000.0
 LATENCY_P99_TARGET_MS = 1.0
@@ -109,14 +109,9 @@ def bench_replay(log: Path, out: Path, repeats: int = 3) -> dict:
 def bench_baseline(ref: str, logs: list[Path]) -> dict[str, dict]:
     """:func:`bench_replay` of each log with the code of git revision ``ref``, in a child process run in a temporary
     detached worktree of it (kept out of this tree; removed after)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        tree = Path(tmp) / "baseline"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), ref], check=True, capture_output=True)
-        try:
-            out = subprocess.run([sys.executable, __file__, "--replay-json", *map(str, logs)], cwd=tree, check=True, capture_output=True,
-                                 text=True, env={**os.environ, "BENCH_CODE_ROOT": str(tree)})
-        finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=True, capture_output=True)
+    with baseline_tree(ref) as tree:
+        out = subprocess.run([sys.executable, __file__, "--replay-json", *map(str, logs)], cwd=tree, check=True, capture_output=True,
+                             text=True, env={**os.environ, "BENCH_CODE_ROOT": str(tree)})
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 

@@ -3,6 +3,7 @@
     python benchmarks/bench_tick.py               # table: us per tick by step, per log; compile cost cold and warm
     python benchmarks/bench_tick.py --runs 7      # median of 7 runs (default 5)
     python benchmarks/bench_tick.py --skip-compile
+    python benchmarks/bench_tick.py --baseline main   # compile cost of REF's kernels too, in the same run
 
 Each log is replayed once through the loop (:class:`fuser.pipeline.Pipeline`)
 to capture the :class:`~fuser.model.tick.TickInput` of every tick; then a
@@ -36,10 +37,12 @@ import os
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from collections import defaultdict
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator
 
 ROOT = Path(os.environ.get("BENCH_CODE_ROOT") or Path(__file__).resolve().parent.parent)
 """The tree whose code is measured (``bench_fuser.py --baseline`` sets another revision's)."""
@@ -202,18 +205,31 @@ print(imported - start, time.perf_counter() - imported)
 """
 
 
-def numba_caches() -> list[Path]:
-    return sorted((ROOT / "core").rglob("*.nb[ic]"))
+def numba_caches(root: Path = ROOT) -> list[Path]:
+    """numba's on-disk caches of the kernels (``core/`` and the model's, ``fuser/``)."""
+    return sorted(p for d in ("core", "fuser") for p in (root / d).rglob("*.nb[ic]"))
 
 
-def compile_seconds(cold: bool) -> tuple[float, float]:
+@contextmanager
+def baseline_tree(ref: str) -> Iterator[Path]:
+    """A temporary detached git worktree of revision ``ref`` (outside this tree), removed after."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "baseline"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), ref], check=True, capture_output=True)
+        try:
+            yield tree
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=True, capture_output=True)
+
+
+def compile_seconds(cold: bool, root: Path = ROOT) -> tuple[float, float]:
     """Seconds for a new interpreter to import the fuser and simulate half a second of flight, then to fuse it
-    (the first ticks compile or load every kernel), after deleting numba's caches of core/ (``cold``) or with
-    them in place."""
+    (the first ticks compile or load every kernel), after deleting numba's caches (``cold``) or with them in
+    place; the code of the tree ``root``."""
     if cold:
-        for f in numba_caches():
+        for f in numba_caches(root):
             f.unlink()
-    out = subprocess.run([sys.executable, "-c", COMPILE_PROBE], cwd=ROOT, capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", COMPILE_PROBE], cwd=root, capture_output=True, text=True, check=True)
     imported, fused = out.stdout.strip().splitlines()[-1].split()
     return float(imported), float(fused)
 
@@ -231,6 +247,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=5, help="runs per log; the median and the fastest are printed (default: 5)")
     parser.add_argument("--skip-compile", action="store_true", help="skip the cold and warm compile measurement")
+    parser.add_argument("--baseline", metavar="REF", help="measure the compile cost of git revision REF's code too, in the same run")
     parser.add_argument("logs", nargs="*", type=Path, help="logs (default: every MCAP in logs/)")
     args = parser.parse_args()
     logs = args.logs or sorted((ROOT / "logs").glob("*.mcap"))
@@ -254,16 +271,25 @@ def main() -> int:
     print_table(rows)
     print(f"\n(step timer's own cost, {overhead * 1e9:.0f} ns per wrapped call, taken off; shared machine: noisy figures)")
     if not args.skip_compile:
-        cold = compile_seconds(cold=True)
-        warm = min((compile_seconds(cold=False) for _ in range(3)), key=sum)
+        table = [["compile (numba cache=True), new interpreter", "imports + simulate 0.5 s", "fuse it (kernels)", "total",
+                  "target (kernels)"]]
+        if args.baseline:
+            with baseline_tree(args.baseline) as tree:
+                table += compile_rows(tree, f"{args.baseline}'s code")
+        table += compile_rows(ROOT, "this tree")
         print()
-        print_table([["compile (numba cache=True), new interpreter", "imports + simulate 0.5 s", "fuse it (kernels)", "total",
-                      "target (kernels)"],
-                     [f"cold: caches of core/ deleted ({len(numba_caches())} cache files written)", f"{cold[0]:.2f} s",
-                      f"{cold[1]:.2f} s", f"{sum(cold):.2f} s", f"< {COLD_TARGET_S:g} s"],
-                     ["warm: from the cache (fastest of 3)", f"{warm[0]:.2f} s", f"{warm[1]:.2f} s", f"{sum(warm):.2f} s",
-                      f"< {WARM_TARGET_S:g} s"]])
+        print_table(table)
     return 0
+
+
+def compile_rows(root: Path, name: str) -> list[list[str]]:
+    """Cold (caches deleted) and warm (fastest of 3) start of the tree ``root``."""
+    cold = compile_seconds(True, root)
+    warm = min((compile_seconds(False, root) for _ in range(3)), key=sum)
+    return [[f"{name}, cold: caches deleted ({len(numba_caches(root))} cache files written)", f"{cold[0]:.2f} s", f"{cold[1]:.2f} s",
+             f"{sum(cold):.2f} s", f"< {COLD_TARGET_S:g} s"],
+            [f"{name}, warm: from the cache (fastest of 3)", f"{warm[0]:.2f} s", f"{warm[1]:.2f} s", f"{sum(warm):.2f} s",
+             f"< {WARM_TARGET_S:g} s"]]
 
 
 if __name__ == "__main__":
