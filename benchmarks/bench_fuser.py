@@ -28,8 +28,9 @@
 Every replay row stands beside the decode floor on that log's bytes and VQF on
 its samples, measured in the same run, so a loaded machine shows in all three.
 ``--baseline REF`` replays the same logs with the code of a git revision (a
-temporary detached worktree, its own numba caches warmed first) in the same
-run, for before/after figures on a shared machine.
+temporary detached worktree, its own numba caches warmed by the first of its
+runs) just before and just after this tree's runs on each log, for before/after
+figures on a shared machine.
 """
 
 from __future__ import annotations
@@ -106,13 +107,11 @@ def bench_replay(log: Path, out: Path, repeats: int = 3) -> dict:
     return {"imu": imu, "samples": fastest.samples, "seconds": fastest.seconds, "imu_per_s": imu / fastest.seconds, "tick_us": tick_us}
 
 
-def bench_baseline(ref: str, logs: list[Path]) -> dict[str, dict]:
-    """:func:`bench_replay` of each log with the code of git revision ``ref``, in a child process run in a temporary
-    detached worktree of it (kept out of this tree; removed after)."""
-    with baseline_tree(ref) as tree:
-        out = subprocess.run([sys.executable, __file__, "--replay-json", *map(str, logs)], cwd=tree, check=True, capture_output=True,
-                             text=True, env={**os.environ, "BENCH_CODE_ROOT": str(tree)})
-    return json.loads(out.stdout.strip().splitlines()[-1])
+def bench_baseline(tree: Path, log: Path) -> dict:
+    """:func:`bench_replay` of ``log`` with the code of the worktree ``tree`` (another revision), in a child process."""
+    out = subprocess.run([sys.executable, __file__, "--replay-json", str(log)], cwd=tree, check=True, capture_output=True, text=True,
+                         env={**os.environ, "BENCH_CODE_ROOT": str(tree)})
+    return json.loads(out.stdout.strip().splitlines()[-1])[str(log)]
 
 
 def profile_replay(log: Path, out: Path, top: int = 18) -> str:
@@ -298,12 +297,17 @@ def message_costs(logs: list[LogMessages], tmp_dir: Path) -> list[tuple[str, str
 
 
 def replay_rows(logs: list[Path], messages: dict[Path, LogMessages], tmp_dir: Path, sim: Path, sim_seconds: float,
-                baseline: tuple[str, dict[str, dict]] | None) -> tuple[list, dict]:
-    """Per log: replay throughput and the model's cost per tick against the targets (and a baseline revision's, if
-    given), beside the decode floor on its bytes and VQF on its samples."""
+                baseline: tuple[str, Path] | None) -> tuple[list, dict]:
+    """Per log: replay throughput and the model's cost per tick against the targets, beside the decode floor on its
+    bytes and VQF on its samples; with a baseline (revision, its worktree), that code's figures measured just before
+    and just after this tree's on the same log (the fastest of both), so both see the same load."""
     rows, results = [], {}
     for log in logs:
+        first = None if baseline is None else bench_baseline(baseline[1], log)
         r = results[log] = bench_replay(log, tmp_dir / "out.mcap")
+        if baseline is not None:
+            second = bench_baseline(baseline[1], log)
+            before = {"imu_per_s": max(first["imu_per_s"], second["imu_per_s"]), "tick_us": min(first["tick_us"], second["tick_us"])}
         lm = messages[log]
         name = log.name if log != sim else f"simulated 400 Hz, {sim_seconds:g} s"
         rows.append((f"replay {name}", f"{r['imu_per_s']:,.0f} IMU samples/s ({r['imu']:,} in {r['seconds']:.2f} s)",
@@ -311,7 +315,7 @@ def replay_rows(logs: list[Path], messages: dict[Path, LogMessages], tmp_dir: Pa
         rows.append(("  model per tick (bench_tick: model + wire estimate)", f"{r['tick_us']:.1f} us", f"<= {TICK_TARGET_US:g} us",
                      f"{r['tick_us'] / TICK_TARGET_US:.2f}x target"))
         if baseline is not None:
-            ref, before = baseline[0], baseline[1][str(log)]
+            ref = baseline[0]
             rows.append((f"  replay with {ref}'s code, same run", f"{before['imu_per_s']:,.0f} IMU samples/s", "this / baseline",
                          f"{r['imu_per_s'] / before['imu_per_s']:.2f}x"))
             rows.append((f"  model per tick with {ref}'s code, same run", f"{before['tick_us']:.1f} us", "baseline / this",
@@ -380,8 +384,11 @@ def main() -> int:
         messages = {log: log_messages(log, system) for system, log in enumerate(logs, start=1)}
         results: dict = {}
         if not args.skip_replay:
-            baseline = None if args.baseline is None else (args.baseline, bench_baseline(args.baseline, logs))
-            replayed, results = replay_rows(logs, messages, tmp_dir, sim, args.sim_seconds, baseline)
+            if args.baseline is None:
+                replayed, results = replay_rows(logs, messages, tmp_dir, sim, args.sim_seconds, None)
+            else:
+                with baseline_tree(args.baseline) as tree:
+                    replayed, results = replay_rows(logs, messages, tmp_dir, sim, args.sim_seconds, (args.baseline, tree))
             rows += replayed
         if not args.skip_live:
             rows += live_rows(args.live_seconds, tmp_dir / "live.mcap" if args.record else None)
