@@ -102,8 +102,8 @@ import numpy as np
 from numba import njit
 
 from core import quaternion as quat
-from core.bingham_kernels import down_alignment_sq
 from core.bingham import Bingham
+from core.bingham_kernels import down_alignment_sq
 from core.normalization import Method
 from core.observations import vector_exponent
 from drivers.samples import GnssSample
