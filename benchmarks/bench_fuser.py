@@ -3,17 +3,20 @@
     python benchmarks/bench_fuser.py            # all three, prints one table (about two minutes)
     python benchmarks/bench_fuser.py --skip-live --skip-replay   # the per-message costs only
     python benchmarks/bench_fuser.py --profile  # and where replay time goes (cProfile)
+    python benchmarks/bench_fuser.py --baseline main --skip-live --skip-messages   # replay and per tick, REF beside this tree
 
 (a) Replay throughput, end to end: decode every input from the MCAP, run the
     loop, write inputs and estimates to a new MCAP; IMU samples per second of
     wall time on one core (fastest of three runs), for each log in logs/ and a
-    400 Hz simulated flight.
-    Target: >= 10,000 IMU samples/s.
+    400 Hz simulated flight; beside it the model's cost per tick on the same
+    log (``benchmarks/bench_tick.py``: the model and the wire estimate alone,
+    fastest of three runs).
+    Targets (issue 17): >= 20,000 IMU samples/s; <= 25 us per tick.
 (b) Live latency: 400 Hz HIGHRES_IMU over UDP from a sender process
     (`bingham-fuser sim --send`), the 100 Hz loop, estimates published on zenoh
     to a subscriber process; latency from each tick's due time to its estimate
     handed to zenoh (LiveRunner's own measurement), p50/p99/max, and overruns.
-    Target: p99 < 2 ms.
+    Target (issue 17): p99 < 1 ms.
 (c) Cost per message of each I/O step of a replay, on the inputs of every log in
     logs/ (and the estimates the simulated ones hold), fastest of five passes, each
     beside the decode floor: bare pymavlink ``parse_buffer`` on the same samples
@@ -24,6 +27,10 @@
 
 Every replay row stands beside the decode floor on that log's bytes and VQF on
 its samples, measured in the same run, so a loaded machine shows in all three.
+``--baseline REF`` replays the same logs with the code of a git revision (a
+temporary detached worktree, its own numba caches warmed by the first of its
+runs) just before and just after this tree's runs on each log, for before/after
+figures on a shared machine.
 """
 
 from __future__ import annotations
@@ -31,6 +38,8 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import json
+import os
 import pstats
 import socket
 import subprocess
@@ -43,7 +52,8 @@ from typing import Callable
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(os.environ.get("BENCH_CODE_ROOT") or Path(__file__).resolve().parent.parent)
+"""The tree whose code is measured: this one, or a ``--baseline`` revision's worktree (set by the parent run)."""
 sys.path.insert(0, str(ROOT))
 
 from drivers.mavlink_decode import MavlinkDecoder, dialect_module  # noqa: E402
@@ -57,8 +67,10 @@ from fuser.record import INPUT_TOPICS, McapRecorder, RawMessage, pose_in_frame, 
 from fuser.replay import replay  # noqa: E402
 from fuser.simulate import run_sim  # noqa: E402
 
-REPLAY_TARGET = 10_000.0
-LATENCY_P99_TARGET_MS = 2.0
+from bench_tick import TICK_TARGET_US, baseline_tree, captured_ticks, run_ticks  # noqa: E402
+
+REPLAY_TARGET = 20_000.0
+LATENCY_P99_TARGET_MS = 1.0
 PASSES = 5
 """Per-message costs are the fastest of this many passes over all the messages."""
 VQF_MISSING = "vqf not installed: pip install -e '.[bench]'"
@@ -90,7 +102,16 @@ def bench_replay(log: Path, out: Path, repeats: int = 3) -> dict:
     imu = len(read_log(log).of(["/input/imu"]))
     config = config_for(log)
     fastest = min((replay(log, out, config, progress=None) for _ in range(repeats)), key=lambda s: s.seconds)
-    return {"imu": imu, "samples": fastest.samples, "seconds": fastest.seconds, "imu_per_s": imu / fastest.seconds}
+    ticks = captured_ticks(log, config)
+    tick_us = min(run_ticks(config, ticks) for _ in range(repeats)) / len(ticks) * 1e6
+    return {"imu": imu, "samples": fastest.samples, "seconds": fastest.seconds, "imu_per_s": imu / fastest.seconds, "tick_us": tick_us}
+
+
+def bench_baseline(tree: Path, log: Path) -> dict:
+    """:func:`bench_replay` of ``log`` with the code of the worktree ``tree`` (another revision), in a child process."""
+    out = subprocess.run([sys.executable, __file__, "--replay-json", str(log)], cwd=tree, check=True, capture_output=True, text=True,
+                         env={**os.environ, "BENCH_CODE_ROOT": str(tree)})
+    return json.loads(out.stdout.strip().splitlines()[-1])[str(log)]
 
 
 def profile_replay(log: Path, out: Path, top: int = 18) -> str:
@@ -275,15 +296,30 @@ def message_costs(logs: list[LogMessages], tmp_dir: Path) -> list[tuple[str, str
     return rows
 
 
-def replay_rows(logs: list[Path], messages: dict[Path, LogMessages], tmp_dir: Path, sim: Path, sim_seconds: float) -> tuple[list, dict]:
-    """Per log: replay throughput against the target, beside the decode floor on its bytes and VQF on its samples."""
+def replay_rows(logs: list[Path], messages: dict[Path, LogMessages], tmp_dir: Path, sim: Path, sim_seconds: float,
+                baseline: tuple[str, Path] | None) -> tuple[list, dict]:
+    """Per log: replay throughput and the model's cost per tick against the targets, beside the decode floor on its
+    bytes and VQF on its samples; with a baseline (revision, its worktree), that code's figures measured just before
+    and just after this tree's on the same log (the fastest of both), so both see the same load."""
     rows, results = [], {}
     for log in logs:
+        first = None if baseline is None else bench_baseline(baseline[1], log)
         r = results[log] = bench_replay(log, tmp_dir / "out.mcap")
+        if baseline is not None:
+            second = bench_baseline(baseline[1], log)
+            before = {"imu_per_s": max(first["imu_per_s"], second["imu_per_s"]), "tick_us": min(first["tick_us"], second["tick_us"])}
         lm = messages[log]
         name = log.name if log != sim else f"simulated 400 Hz, {sim_seconds:g} s"
         rows.append((f"replay {name}", f"{r['imu_per_s']:,.0f} IMU samples/s ({r['imu']:,} in {r['seconds']:.2f} s)",
                      f">= {REPLAY_TARGET:,.0f}/s", f"{r['imu_per_s'] / REPLAY_TARGET:.2f}x target"))
+        rows.append(("  model per tick (bench_tick: model + wire estimate)", f"{r['tick_us']:.1f} us", f"<= {TICK_TARGET_US:g} us",
+                     f"{r['tick_us'] / TICK_TARGET_US:.2f}x target"))
+        if baseline is not None:
+            ref = baseline[0]
+            rows.append((f"  replay with {ref}'s code, same run", f"{before['imu_per_s']:,.0f} IMU samples/s", "this / baseline",
+                         f"{r['imu_per_s'] / before['imu_per_s']:.2f}x"))
+            rows.append((f"  model per tick with {ref}'s code, same run", f"{before['tick_us']:.1f} us", "baseline / this",
+                         f"{before['tick_us'] / r['tick_us']:.2f}x"))
         floor = 1e6 / parse_floor_us(lm.packets)
         rows.append(("  decode floor: parse_buffer on its inputs as MAVLink", f"{floor:,.0f} packets/s", "replay / floor",
                      f"{r['samples'] / r['seconds'] / floor:.3f}x"))
@@ -331,7 +367,13 @@ def main() -> int:
     parser.add_argument("--skip-replay", action="store_true")
     parser.add_argument("--skip-messages", action="store_true", help="skip the per-message costs")
     parser.add_argument("--record", action="store_true", help="live run records to MCAP too, as `run --record` does")
+    parser.add_argument("--baseline", metavar="REF", help="also replay every log with the code of git revision REF, in the same run")
+    parser.add_argument("--replay-json", nargs="+", type=Path, help=argparse.SUPPRESS)  # a --baseline child: these logs, as JSON
     args = parser.parse_args()
+    if args.replay_json:
+        with tempfile.TemporaryDirectory() as tmp:
+            print(json.dumps({str(log): bench_replay(log, Path(tmp) / "out.mcap") for log in args.replay_json}))
+        return 0
 
     rows: list[tuple[str, str, str, str]] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -342,7 +384,11 @@ def main() -> int:
         messages = {log: log_messages(log, system) for system, log in enumerate(logs, start=1)}
         results: dict = {}
         if not args.skip_replay:
-            replayed, results = replay_rows(logs, messages, tmp_dir, sim, args.sim_seconds)
+            if args.baseline is None:
+                replayed, results = replay_rows(logs, messages, tmp_dir, sim, args.sim_seconds, None)
+            else:
+                with baseline_tree(args.baseline) as tree:
+                    replayed, results = replay_rows(logs, messages, tmp_dir, sim, args.sim_seconds, (args.baseline, tree))
             rows += replayed
         if not args.skip_live:
             rows += live_rows(args.live_seconds, tmp_dir / "live.mcap" if args.record else None)

@@ -17,6 +17,7 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from core import bingham_kernels as kernels
 from core import quaternion as quat
 from core.normalization import Method, fit_dispersion_trusted, log_normalizer, moments_trusted
 from core.sampling import random_samples, unscented_samples
@@ -245,8 +246,9 @@ class Bingham:
         return self.times_exponent(other.C)
 
     def times_exponent(self, C: NDArray[np.float64]) -> Bingham:
-        """Normalized product with ``exp(x^T C x)`` for a symmetric ``C`` (a likelihood's exponent)."""
-        evals, evecs = np.linalg.eigh(self.C + C)
+        """Normalized product with ``exp(x^T C x)`` for a symmetric ``C`` (a likelihood's exponent): the
+        eigendecomposition of ``self.C + C`` (:func:`core.bingham_kernels.product_parameters`)."""
+        evals, evecs = kernels.product_parameters(self._M, self._Z, np.ascontiguousarray(C, dtype=np.float64))
         return Bingham._trusted(evecs, evals)
 
     def with_concentrations(self, z: ArrayLike) -> Bingham:
@@ -256,19 +258,27 @@ class Bingham:
         or sharpen a distribution along its own axes without an
         eigendecomposition.
         """
-        z3 = np.asarray(z, dtype=float)
-        if z3.shape != (3,) or not (np.isfinite(z3).all() and (z3 <= 0.0).all()):
+        z3 = np.ascontiguousarray(z, dtype=np.float64)
+        if z3.shape != (3,):
             raise ValueError(f"z must be 3 finite entries <= 0, got {z}")
-        order = np.argsort(z3, kind="stable")
-        return Bingham._trusted(np.column_stack([self._M[:, order], self._M[:, 3]]), np.append(z3[order], 0.0))
+        M, Z, ok = kernels.sorted_concentrations(self._M, z3)
+        if not ok:
+            raise ValueError(f"z must be 3 finite entries <= 0, got {z}")
+        return Bingham._trusted(M, Z)
 
     def rotate_left(self, u: ArrayLike) -> Bingham:
-        """Distribution of ``u (x) x`` (QBF paper, sec. 5): ``M -> L(u) M``."""
-        return Bingham._trusted(quat.left_matrix(quat.as_quaternion(u)) @ self._M, self._Z)
+        """Distribution of ``u (x) x`` (QBF paper, sec. 5): ``M -> L(u) M``; ``Z``, and so the moments, kept."""
+        return self._rotated(kernels.rotated_left(np.ascontiguousarray(quat.as_quaternion(u)), self._M))
 
     def rotate_right(self, u: ArrayLike) -> Bingham:
-        """Distribution of ``x (x) u`` (QBF paper, sec. 5): ``M -> R(u) M``."""
-        return Bingham._trusted(quat.right_matrix(quat.as_quaternion(u)) @ self._M, self._Z)
+        """Distribution of ``x (x) u`` (QBF paper, sec. 5): ``M -> R(u) M``; ``Z``, and so the moments, kept."""
+        return self._rotated(kernels.rotated_right(np.ascontiguousarray(quat.as_quaternion(u)), self._M))
+
+    def _rotated(self, M: NDArray[np.float64]) -> Bingham:
+        """This distribution with principal directions ``M``: the same ``Z``, so the same cached normalizer and moments."""
+        obj = Bingham._trusted(M, self._Z)
+        obj._cache.update(self._cache)
+        return obj
 
     def inverse(self) -> Bingham:
         """Distribution of ``x^-1`` (QBF paper, sec. 5): ``M -> J M``."""

@@ -44,6 +44,7 @@ MIN_MOMENT = 1e-10
 
 # Squared log-moment residual at which Gauss-Newton stops (1e-10 relative per moment).
 _CONVERGED = 1e-20
+_NO_START = np.empty(0)  # saddlepoint.fit_moments: start from _initial_z
 
 
 def _as_z(z: ArrayLike) -> NDArray[np.float64]:
@@ -84,8 +85,7 @@ def moments(z: ArrayLike, method: Method = "saddlepoint") -> NDArray[np.float64]
 def moments_trusted(z: NDArray[np.float64], method: Method) -> NDArray[np.float64]:
     """:func:`moments` without checking ``z``, for one already checked (a :class:`~core.bingham.Bingham`'s)."""
     if method == "saddlepoint":
-        grad = saddlepoint.derivatives(z, 1)[1]
-        return grad / grad.sum()
+        return saddlepoint.moments(z)
     _check_method(method)
     return hopf_quadrature.log_normalizer_and_moments(z)[1]
 
@@ -179,12 +179,9 @@ def fit_dispersion_trusted(
     two). The exact solver ignores it: Levenberg-Marquardt from a distant
     start can stall on the ``z <= 0`` bound.
     """
+    if method == "saddlepoint":
+        begin = _NO_START if start is None else np.ascontiguousarray(start, dtype=np.float64)
+        return saddlepoint.fit_moments(np.ascontiguousarray(target, dtype=np.float64), begin, MIN_MOMENT, _CONVERGED, max_iter)
     t = np.maximum(target, MIN_MOMENT)
     t /= t.sum()
-    log_t = np.log(t)
-    if method == "exact":
-        return np.sort(_exact_fit(_initial_z(t), log_t)), None
-    z0 = _initial_z(t) if start is None else np.array(start, dtype=np.float64)
-    z, m = saddlepoint.fit_log_moments(z0, log_t, _CONVERGED, max_iter)
-    order = np.argsort(z, kind="stable")
-    return z[order], m[order]
+    return np.sort(_exact_fit(_initial_z(t), np.log(t))), None

@@ -20,20 +20,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from numpy.typing import ArrayLike
 
 from core import quaternion as quat
 from core.bingham import Bingham
 
 __all__ = ["heading_exponent", "heading_likelihood", "vector_exponent", "vector_likelihood"]
-
-
-def _unit(v: ArrayLike) -> np.ndarray:
-    v = np.asarray(v, dtype=float)
-    norm = float(np.sqrt(v @ v))
-    if not np.isfinite(norm) or norm == 0.0:
-        raise ValueError("direction vectors must be finite and non-zero")
-    return v / norm
 
 
 def _check_sigma(sigma: float) -> None:
@@ -46,22 +39,44 @@ def vector_exponent(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> np.n
 
     Written out, ``K`` is Davenport's matrix for the profile ``B = r b^T``:
     ``[[tr B, (b x r)^T], [b x r, B + B^T - tr(B) I]]`` (checked against the
-    quaternion-matrix form in the tests).
+    quaternion-matrix form in the tests); compiled (:func:`_davenport`), a
+    gravity reading's per-tick cost.
     """
     _check_sigma(sigma)
-    bx, by, bz = _unit(b_body).tolist()
-    rx, ry, rz = _unit(r_world).tolist()
+    b, r = np.ascontiguousarray(b_body, dtype=np.float64), np.ascontiguousarray(r_world, dtype=np.float64)
+    k = _davenport(b, r, float(sigma)) if b.shape == r.shape == (3,) else None
+    if k is None:
+        raise ValueError("direction vectors must be finite and non-zero")
+    return k
+
+
+@njit(cache=True, nogil=True)
+def _davenport(b: np.ndarray, r: np.ndarray, sigma: float):
+    """Davenport's ``K / sigma^2`` for the unit directions of ``b`` and ``r`` (None if either is zero or not finite)."""
+    nb = math.sqrt(b[0] * b[0] + b[1] * b[1] + b[2] * b[2])
+    nr = math.sqrt(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    if not (math.isfinite(nb) and math.isfinite(nr) and nb > 0.0 and nr > 0.0):
+        return None
+    bx, by, bz = b[0] / nb, b[1] / nb, b[2] / nb
+    rx, ry, rz = r[0] / nr, r[1] / nr, r[2] / nr
     trace = rx * bx + ry * by + rz * bz
-    cross = (by * rz - bz * ry, bz * rx - bx * rz, bx * ry - by * rx)
-    k = np.array(
-        [
-            [trace, *cross],
-            [cross[0], 2 * rx * bx - trace, rx * by + ry * bx, rx * bz + rz * bx],
-            [cross[1], rx * by + ry * bx, 2 * ry * by - trace, ry * bz + rz * by],
-            [cross[2], rx * bz + rz * bx, ry * bz + rz * by, 2 * rz * bz - trace],
-        ]
-    )
-    return k / (sigma * sigma)
+    cx, cy, cz = by * rz - bz * ry, bz * rx - bx * rz, bx * ry - by * rx
+    s2 = sigma * sigma
+    k = np.empty((4, 4))
+    k[0, 0] = trace / s2
+    k[0, 1] = cx / s2
+    k[0, 2] = cy / s2
+    k[0, 3] = cz / s2
+    k[1, 1] = (2 * rx * bx - trace) / s2
+    k[1, 2] = (rx * by + ry * bx) / s2
+    k[1, 3] = (rx * bz + rz * bx) / s2
+    k[2, 2] = (2 * ry * by - trace) / s2
+    k[2, 3] = (ry * bz + rz * by) / s2
+    k[3, 3] = (2 * rz * bz - trace) / s2
+    for i in range(4):
+        for j in range(i):
+            k[i, j] = k[j, i]
+    return k
 
 
 def vector_likelihood(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> Bingham:
@@ -84,10 +99,21 @@ def heading_exponent(q_ref: ArrayLike, heading_error_rad: float, sigma: float) -
     -Rz(error) k q_ref``, which is computed directly.
     """
     _check_sigma(sigma)
-    q_ref = quat.as_quaternion(q_ref)
+    return _heading_exponent(np.ascontiguousarray(quat.as_quaternion(q_ref)), float(heading_error_rad), float(sigma))
+
+
+@njit(cache=True, nogil=True)
+def _heading_exponent(q: np.ndarray, heading_error_rad: float, sigma: float) -> np.ndarray:
+    """:func:`heading_exponent`, compiled: ``v = (sin(e/2), 0, 0, -cos(e/2)) (x) q_ref``, ``-(2/sigma^2) v v^T``."""
     half = 0.5 * heading_error_rad
-    v = quat.multiply(np.array([math.sin(half), 0.0, 0.0, -math.cos(half)]), q_ref)
-    return (-2.0 / (sigma * sigma)) * np.outer(v, v)
+    s, c = math.sin(half), -math.cos(half)
+    v = np.array([s * q[0] - c * q[3], s * q[1] - c * q[2], s * q[2] + c * q[1], s * q[3] + c * q[0]])
+    kappa = -2.0 / (sigma * sigma)
+    out = np.empty((4, 4))
+    for i in range(4):
+        for j in range(4):
+            out[i, j] = kappa * (v[i] * v[j])
+    return out
 
 
 def heading_likelihood(q_ref: ArrayLike, heading_error_rad: float, sigma: float) -> Bingham:

@@ -26,9 +26,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from core import quaternion as quat
 from core.bingham import Bingham
+from core.bingham_kernels import down_alignment_sq
 from fuser.config import ModelErrorSettings
 
 __all__ = ["ModelErrorState", "model_error_variances", "observe_rate", "published", "widened_concentrations", "with_model_error"]
@@ -50,6 +52,17 @@ def widened_concentrations(M: np.ndarray, Z: np.ndarray, tilt_variance, heading_
     return Z[..., :3] / (1.0 + 2.0 * np.abs(Z[..., :3]) * variance)
 
 
+@njit(cache=True, nogil=True)
+def _widened_one(M: np.ndarray, Z: np.ndarray, tilt_variance: float, heading_variance: float) -> np.ndarray:
+    """:func:`widened_concentrations` of one state, compiled (the per-tick case)."""
+    along_down = down_alignment_sq(M)
+    out = np.empty(3)
+    for i in range(3):
+        variance = 0.25 * (tilt_variance + (heading_variance - tilt_variance) * along_down[i])
+        out[i] = Z[i] / (1.0 + 2.0 * abs(Z[i]) * variance)
+    return out
+
+
 def with_model_error(state: Bingham, tilt_variance: float, heading_variance: float) -> Bingham:
     """``state`` composed with an independent world-frame error of the model (a consider term).
 
@@ -65,7 +78,7 @@ def with_model_error(state: Bingham, tilt_variance: float, heading_variance: flo
     the model error's small off-diagonal part), so no eigendecomposition is
     needed. An unknown axis (``z_i = 0``) stays unknown.
     """
-    return state.with_concentrations(widened_concentrations(state.M, state.Z, tilt_variance, heading_variance))
+    return state.with_concentrations(_widened_one(state.M, state.Z, float(tilt_variance), float(heading_variance)))
 
 
 @dataclass(frozen=True, slots=True)

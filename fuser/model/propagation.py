@@ -91,6 +91,8 @@ def _saturated(params: GyroSettings, rate: Vec3) -> bool:
 def _merged(params: GyroSettings, samples: Sequence[ImuSample], placed_ns: Sequence[int]) -> list[tuple[int, Vec3, bool]]:
     """The tick's gyro samples as one stream in time order, saturated or not; samples of several IMUs at one
     instant averaged (the unsaturated ones, if any)."""
+    if all(a < b for a, b in zip(placed_ns, placed_ns[1:])):  # the common case, one IMU: every sample its own instant, in order
+        return [(t, s.gyro_rad_s, _saturated(params, s.gyro_rad_s)) for s, t in zip(samples, placed_ns)]
     by_time: dict[int, list[Vec3]] = {}
     for s, t in zip(samples, placed_ns):
         by_time.setdefault(t, []).append(s.gyro_rad_s)

@@ -99,9 +99,11 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
+from numba import njit
 
 from core import quaternion as quat
 from core.bingham import Bingham
+from core.bingham_kernels import down_alignment_sq
 from core.normalization import Method
 from core.observations import vector_exponent
 from drivers.samples import GnssSample
@@ -135,9 +137,6 @@ class VelocityTrack:
     events: tuple[str, ...]
 
 
-_DOWN_PURE = np.array([0.0, 0.0, 0.0, 1.0])  # world down (NED z) as a pure quaternion
-
-
 def _norm(v: np.ndarray) -> float:
     return math.sqrt(float(v @ v))
 
@@ -150,11 +149,17 @@ def tilt_doubt_deg(state: Bingham, method: Method) -> float:
     ``1 - cos^2`` of that axis with world down seen in the body, ``cos = m_i . (k mode)`` (as in
     :func:`fuser.model_error.widened_concentrations`). A heading still unknown (6-D, a cold start) does not count.
     """
-    m = state.M
-    moments = state.moments(method)
-    along_down = (quat.multiply(_DOWN_PURE, m[:, 3]) @ m[:, :3]) ** 2
-    variance = float(4.0 * moments[:3] @ (1.0 - np.minimum(along_down, 1.0)))
-    return math.degrees(math.sqrt(max(variance, 0.0)))
+    return math.degrees(math.sqrt(max(_tilt_variance(state.M, state.moments(method)), 0.0)))
+
+
+@njit(cache=True, nogil=True)
+def _tilt_variance(M: np.ndarray, moments: np.ndarray) -> float:
+    """``sum_i 4 E[(m_i . x)^2] (1 - cos_i^2)`` over the three dispersion directions (:func:`tilt_doubt_deg`), compiled."""
+    along_down = down_alignment_sq(M)
+    variance = 0.0
+    for i in range(3):
+        variance += 4.0 * moments[i] * (1.0 - min(along_down[i], 1.0))
+    return variance
 
 
 def _force_at(knots: Sequence[tuple[int, np.ndarray, np.ndarray]], t_ns: int) -> np.ndarray | None:
@@ -210,7 +215,6 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
     to_s = quat.to_matrix(gravity.q_strapdown)  # body -> S
     force_s = None if accel_body_m_s2 is None else to_s @ accel_body_m_s2
     knots = _knots(params, state, force_s, tick_ns, dt_ns, frame_broken)
-    s_to_ned = quat.to_matrix(predicted_q) @ to_s.T  # S -> NED, by the estimate: for the jump check and the start only
     g = gravity_params.gravity_m_s2
     max_age_ns = round(params.max_age_s * 1e9)
     streams = {s.key: s for s in state.streams}
@@ -242,8 +246,8 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
         accel = (np.asarray(fix.vel_ned_m_s) - np.asarray(previous.vel_ned_m_s)) / span_s
         if not both_vertical:
             accel[2] = 0.0  # unknown: left to the low-pass (module docstring)
-        # the jump check: against the accelerometer's acceleration, rotated by the estimate
-        predicted = s_to_ned @ force + g * DOWN_NED
+        # the jump check: against the accelerometer's acceleration, rotated by the estimate (S -> NED), only when a pair comes
+        predicted = (quat.to_matrix(predicted_q) @ to_s.T) @ force + g * DOWN_NED
         difference = accel - predicted
         if not both_vertical:
             difference[2] = 0.0

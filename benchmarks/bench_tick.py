@@ -1,0 +1,296 @@
+"""The fusion model's cost per tick, split by step, on the ticks of every log in logs/.
+
+    python benchmarks/bench_tick.py               # table: us per tick by step, per log; compile cost cold and warm
+    python benchmarks/bench_tick.py --runs 7      # median of 7 runs (default 5)
+    python benchmarks/bench_tick.py --skip-compile
+    python benchmarks/bench_tick.py --baseline main   # compile cost of REF's kernels too, in the same run
+
+Each log is replayed once through the loop (:class:`fuser.pipeline.Pipeline`)
+to capture the :class:`~fuser.model.tick.TickInput` of every tick; then a
+fresh :class:`~fuser.model.FusionModel` steps through those inputs, and the
+loop's :func:`~fuser.loop.estimate_of` builds each wire estimate ("publish"),
+so the figures are the model's alone, no decoding or recording. The total per
+tick is timed bare, the median of ``--runs`` runs.
+
+The split by step is measured in a separate run with every step's function
+wrapped by a timer that charges each call its *exclusive* time (a nested
+step's time goes to the nested step); the timer's own cost per call,
+calibrated on an empty function, is taken off. What no wrapped function
+covers (``FusionModel.step``'s own lines: lists, dataclasses, counters) is
+"step's own code". The wrapped names are those ``fuser.model.fusion`` calls
+(and the normalizer entry points of :mod:`core.bingham`), so the split holds
+whether a step runs as numpy or as a compiled kernel.
+
+Compile cost (numba, ``cache=True``): a new interpreter imports the model and
+steps one tick of a simulated flight, once after deleting the on-disk caches
+of ``core/`` (cold: every kernel compiled) and once more (warm: loaded from the
+cache). Targets (issue 17): 25 us per tick; cold < 10 s, warm < 1 s.
+
+The machine is shared: figures are noisy; the medians and the fastest runs are
+both printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections import defaultdict
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Callable, Iterator
+
+ROOT = Path(os.environ.get("BENCH_CODE_ROOT") or Path(__file__).resolve().parent.parent)
+"""The tree whose code is measured (``bench_fuser.py --baseline`` sets another revision's)."""
+sys.path.insert(0, str(ROOT))
+
+import core.bingham  # noqa: E402
+import fuser.model.fusion as fusion  # noqa: E402
+from fuser import model_error  # noqa: E402
+from fuser.config import FuserConfig, load_config  # noqa: E402
+from fuser.loop import estimate_of  # noqa: E402
+from fuser.model import FusionModel, TickInput  # noqa: E402
+from fuser.model import bias as bias_feedback  # noqa: E402
+from fuser.pipeline import Pipeline  # noqa: E402
+from fuser.record import read_log  # noqa: E402
+
+TICK_TARGET_US = 25.0
+COLD_TARGET_S = 10.0
+WARM_TARGET_S = 1.0
+
+# step -> (namespace, attribute) of every function of that step the tick calls
+STEPS: dict[str, list[tuple[object, str]]] = {
+    "imu check": [(fusion, "check_imus")],
+    "propagation (gyro integration, prediction)": [(fusion, "integrate_gyro"), (fusion, "predict"), (fusion, "turned_heading")],
+    "gravity / velocity update": [(fusion, "turn_frame"), (fusion, "tilt_time_constant_s"), (fusion, "track_velocity"),
+                                  (fusion, "update_gravity"), (fusion, "update_gravity_aided"), (fusion, "mean_in_state_body"),
+                                  (fusion, "lags_s")],
+    "heading (magnetometer)": [(fusion.FusionModel, "_mag_in_state_body"), (fusion, "heading_sigma_rad"), (fusion, "update_heading"),
+                               (fusion, "_field_reference"), (fusion, "update_field")],
+    "attitude source": [(fusion, "attitude_in_use"), (fusion, "update_attitude")],
+    "product + eigendecomposition": [(fusion, "_multiplied")],
+    "moment fit / normaliser": [(core.bingham, "fit_dispersion_trusted"), (core.bingham, "moments_trusted"), (fusion, "rms_angle_deg")],
+    "rest, bias": [(fusion, "detect_rest"), (fusion, "measure_bias"), (bias_feedback, "propagate"), (bias_feedback, "may_learn"),
+                   (bias_feedback, "learn_from_correction")],
+    "model error": [(model_error, "published"), (model_error, "observe_rate")],
+}
+PUBLISH = "publish (estimate_of: the wire Estimate)"
+OWN = "step's own code"
+
+
+def config_for(log: Path) -> FuserConfig:
+    """The settings a log is replayed with: the .toml beside it (an imported log's earth field), else the defaults."""
+    toml = log.with_suffix(".toml")
+    return load_config(toml if toml.exists() else None)
+
+
+def captured_ticks(log: Path, config: FuserConfig) -> list[TickInput]:
+    """The TickInput of every tick of a replay of ``log`` (as :func:`fuser.replay.replay` feeds the loop)."""
+    pipeline = Pipeline(config, [], [], max_catch_up_ticks=1000)
+    model = pipeline.loop.model
+    ticks: list[TickInput] = []
+    step = model.step
+
+    def recording(tick: TickInput):
+        ticks.append(tick)
+        return step(tick)
+
+    model.step = recording  # type: ignore[method-assign]
+    for sample, receive_ns in read_log(log).inputs():
+        pipeline.feed(sample, receive_ns)
+    pipeline.finish()
+    return ticks
+
+
+def run_ticks(config: FuserConfig, ticks: list[TickInput]) -> float:
+    """Seconds to step a fresh model through ``ticks`` and build each estimate."""
+    model = FusionModel(config)
+    start = time.perf_counter()
+    for tick in ticks:
+        result = model.step(tick)
+        estimate_of(tick.t_ns, result, result.counters, None)
+    return time.perf_counter() - start
+
+
+class StepTimer:
+    """Exclusive time per step: each wrapped call's time minus that of the wrapped calls inside it."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = defaultdict(float)
+        self.calls: dict[str, int] = defaultdict(int)
+        self._nested: list[float] = []
+
+    def wrap(self, step: str, fn: Callable) -> Callable:
+        clock, nested = time.perf_counter, self._nested
+        seconds, calls = self.seconds, self.calls
+
+        def timed(*args, **kwargs):
+            nested.append(0.0)
+            start = clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                elapsed = clock() - start
+                inner = nested.pop()
+                seconds[step] += elapsed - inner
+                calls[step] += 1
+                if nested:
+                    nested[-1] += elapsed
+
+        return timed
+
+
+def timer_overhead_s(n: int = 200_000) -> float:
+    """Seconds a wrapped call costs more than a bare one."""
+    def empty() -> None:
+        return None
+
+    timed = StepTimer().wrap("x", empty)
+    best = []
+    for fn in (empty, timed):
+        start = time.perf_counter()
+        for _ in range(n):
+            fn()
+        best.append(time.perf_counter() - start)
+    return max(0.0, (best[1] - best[0]) / n)
+
+
+def split_by_step(config: FuserConfig, ticks: list[TickInput], overhead_s: float) -> dict[str, float]:
+    """Microseconds per tick of each step (timer cost taken off), step's own code and publish included."""
+    timer = StepTimer()
+    saved = []
+    for step, names in STEPS.items():
+        for ns, name in names:
+            original = getattr(ns, name)
+            saved.append((ns, name, original))
+            setattr(ns, name, timer.wrap(step, original))
+    try:
+        model = FusionModel(config)
+        step_total = publish = 0.0
+        for tick in ticks:
+            t0 = time.perf_counter()
+            result = model.step(tick)
+            t1 = time.perf_counter()
+            estimate_of(tick.t_ns, result, result.counters, None)
+            t2 = time.perf_counter()
+            step_total += t1 - t0
+            publish += t2 - t1
+    finally:
+        for ns, name, original in saved:
+            setattr(ns, name, original)
+    n = len(ticks)
+    out = {step: 1e6 * (timer.seconds[step] - overhead_s * timer.calls[step]) / n for step in STEPS}
+    wrapped = sum(timer.seconds.values())
+    out[OWN] = 1e6 * (step_total - wrapped - overhead_s * sum(timer.calls.values())) / n
+    out[PUBLISH] = 1e6 * publish / n
+    return out
+
+
+COMPILE_PROBE = """
+import time
+start = time.perf_counter()
+from drivers.sim import SimConfig, simulate
+from fuser.config import FuserConfig
+from fuser.pipeline import Pipeline
+from fuser.simulate import run_sim
+flight = simulate(SimConfig(duration_s=0.5, imu_rate_hz=200.0))
+imported = time.perf_counter()
+pipeline = Pipeline(FuserConfig(), [], [])
+run_sim(pipeline, flight, "mavlink", 0, [])
+print(imported - start, time.perf_counter() - imported)
+"""
+
+
+def numba_caches(root: Path = ROOT) -> list[Path]:
+    """numba's on-disk caches of the kernels (``core/`` and the model's, ``fuser/``)."""
+    return sorted(p for d in ("core", "fuser") for p in (root / d).rglob("*.nb[ic]"))
+
+
+@contextmanager
+def baseline_tree(ref: str) -> Iterator[Path]:
+    """A temporary detached git worktree of revision ``ref`` (outside this tree), removed after."""
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "baseline"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree), ref], check=True, capture_output=True)
+        try:
+            yield tree
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)], check=True, capture_output=True)
+
+
+def compile_seconds(cold: bool, root: Path = ROOT) -> tuple[float, float]:
+    """Seconds for a new interpreter to import the fuser and simulate half a second of flight, then to fuse it
+    (the first ticks compile or load every kernel), after deleting numba's caches (``cold``) or with them in
+    place; the code of the tree ``root``."""
+    if cold:
+        for f in numba_caches(root):
+            f.unlink()
+    out = subprocess.run([sys.executable, "-c", COMPILE_PROBE], cwd=root, capture_output=True, text=True, check=True)
+    imported, fused = out.stdout.strip().splitlines()[-1].split()
+    return float(imported), float(fused)
+
+
+def print_table(rows: list[list[str]]) -> None:
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    fmt = lambda r: "| " + " | ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))) + " |"  # noqa: E731
+    print(fmt(rows[0]))
+    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
+    for r in rows[1:]:
+        print(fmt(r))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=5, help="runs per log; the median and the fastest are printed (default: 5)")
+    parser.add_argument("--skip-compile", action="store_true", help="skip the cold and warm compile measurement")
+    parser.add_argument("--baseline", metavar="REF", help="measure the compile cost of git revision REF's code too, in the same run")
+    parser.add_argument("logs", nargs="*", type=Path, help="logs (default: every MCAP in logs/)")
+    args = parser.parse_args()
+    logs = args.logs or sorted((ROOT / "logs").glob("*.mcap"))
+
+    overhead = timer_overhead_s()
+    columns, totals = [], []
+    for log in logs:
+        config = config_for(log)
+        ticks = captured_ticks(log, config)
+        run_ticks(config, ticks[: min(200, len(ticks))])  # kernels loaded, caches warm
+        runs = [run_ticks(config, ticks) / len(ticks) * 1e6 for _ in range(args.runs)]
+        columns.append((log.stem, len(ticks), split_by_step(config, ticks, overhead)))
+        totals.append((statistics.median(runs), min(runs)))
+    steps = list(STEPS) + [OWN, PUBLISH]
+    rows = [["us per tick"] + [f"{name} ({n:,} ticks)" for name, n, _ in columns]]
+    rows += [[step] + [f"{split[step]:.1f}" for _, _, split in columns] for step in steps]
+    rows.append(["sum of the steps (timed with the split)"] + [f"{sum(split.values()):.1f}" for _, _, split in columns])
+    rows.append([f"total, bare: median of {args.runs} runs"] + [f"{med:.1f}" for med, _ in totals])
+    rows.append([f"total, bare: fastest of {args.runs} runs"] + [f"{fast:.1f}" for _, fast in totals])
+    rows.append(["against the target"] + [f"{fast / TICK_TARGET_US:.2f}x of {TICK_TARGET_US:g} us" for _, fast in totals])
+    print_table(rows)
+    print(f"\n(step timer's own cost, {overhead * 1e9:.0f} ns per wrapped call, taken off; shared machine: noisy figures)")
+    if not args.skip_compile:
+        table = [["compile (numba cache=True), new interpreter", "imports + simulate 0.5 s", "fuse it (kernels)", "total",
+                  "target (kernels)"]]
+        if args.baseline:
+            with baseline_tree(args.baseline) as tree:
+                table += compile_rows(tree, f"{args.baseline}'s code")
+        table += compile_rows(ROOT, "this tree")
+        print()
+        print_table(table)
+    return 0
+
+
+def compile_rows(root: Path, name: str) -> list[list[str]]:
+    """Cold (caches deleted) and warm (fastest of 3) start of the tree ``root``."""
+    cold = compile_seconds(True, root)
+    warm = min((compile_seconds(False, root) for _ in range(3)), key=sum)
+    return [[f"{name}, cold: caches deleted ({len(numba_caches(root))} cache files written)", f"{cold[0]:.2f} s", f"{cold[1]:.2f} s",
+             f"{sum(cold):.2f} s", f"< {COLD_TARGET_S:g} s"],
+            [f"{name}, warm: from the cache (fastest of 3)", f"{warm[0]:.2f} s", f"{warm[1]:.2f} s", f"{sum(warm):.2f} s",
+             f"< {WARM_TARGET_S:g} s"]]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,189 @@
+"""Compiled per-tick operations of :class:`core.bingham.Bingham` on its parameters ``(M, Z)``.
+
+Compiled with numba (``cache=True``, no fastmath: every operation is IEEE
+arithmetic in a fixed order, so a replay is byte-identical run to run). Each
+kernel does what a few numpy calls did, in one call: a filter tick spends its
+time in the overhead of many small numpy operations on 4x4 matrices, not in
+arithmetic. The numpy forms they replace are kept as the references in
+``tests/test_bingham_kernels.py``.
+
+The product of two Binghams is the Bingham of the summed exponents (QBF paper,
+sec. 5, eq. 3); its parameters are the eigendecomposition of the 4x4
+symmetric ``M diag(Z) M^T + C``, here by the cyclic Jacobi method (Golub & Van
+Loan, *Matrix Computations*, 4th ed., sec. 8.5.2-8.5.3, Alg. 8.5.2 and 8.5.3
+with Rutishauser's stable rotation formulas): for a 4x4 matrix a few sweeps of
+six rotations, no LAPACK call (whose numba bindings cost seconds to compile),
+eigenvectors orthonormal to rounding and small eigenvalues accurate relative to
+the largest.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["down_alignment_sq", "product_parameters", "rotated_left", "rotated_right", "sorted_concentrations", "symmetric_eigh"]
+
+_MAX_SWEEPS = 60
+
+
+@njit(cache=True, nogil=True)
+def symmetric_eigh(a_in: np.ndarray) -> tuple:
+    """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric matrix, by cyclic Jacobi.
+
+    A rotation in the plane ``(p, q)`` zeroes ``a[p, q]`` (``t = tan(phi)`` the
+    smaller root of ``t^2 + 2 t theta - 1 = 0``, ``theta = (a_qq - a_pp) /
+    (2 a_pq)``); an off-diagonal entry below the rounding of both diagonal
+    entries it couples is set to zero after the third sweep, so the iteration
+    ends with an exactly diagonal matrix. Equal eigenvalues keep the order the
+    sweeps left them in (a stable sort): the result is a function of the input
+    bits alone.
+    """
+    n = a_in.shape[0]
+    a = a_in.copy()
+    v = np.eye(n)
+    for sweep in range(_MAX_SWEEPS):
+        off = 0.0
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                off += abs(a[p, q])
+        if off == 0.0:
+            break
+        for p in range(n - 1):
+            for q in range(p + 1, n):
+                apq = a[p, q]
+                if apq == 0.0:
+                    continue
+                app = a[p, p]
+                aqq = a[q, q]
+                g = 100.0 * abs(apq)
+                if sweep > 3 and abs(app) + g == abs(app) and abs(aqq) + g == abs(aqq):
+                    a[p, q] = 0.0
+                    a[q, p] = 0.0
+                    continue
+                theta = (aqq - app) / (2.0 * apq)
+                if abs(theta) > 1e150:
+                    t = 0.5 / theta
+                else:
+                    t = 1.0 / (abs(theta) + math.sqrt(theta * theta + 1.0))
+                    if theta < 0.0:
+                        t = -t
+                c = 1.0 / math.sqrt(t * t + 1.0)
+                s = t * c
+                for k in range(n):  # A J
+                    akp = a[k, p]
+                    akq = a[k, q]
+                    a[k, p] = c * akp - s * akq
+                    a[k, q] = s * akp + c * akq
+                for k in range(n):  # J^T (A J)
+                    apk = a[p, k]
+                    aqk = a[q, k]
+                    a[p, k] = c * apk - s * aqk
+                    a[q, k] = s * apk + c * aqk
+                a[p, q] = 0.0
+                a[q, p] = 0.0
+                for k in range(n):  # V J
+                    vkp = v[k, p]
+                    vkq = v[k, q]
+                    v[k, p] = c * vkp - s * vkq
+                    v[k, q] = s * vkp + c * vkq
+    evals = np.empty(n)
+    for i in range(n):
+        evals[i] = a[i, i]
+    order = np.arange(n)
+    for i in range(1, n):  # insertion sort: stable, n is 4
+        j = i
+        while j > 0 and evals[order[j - 1]] > evals[order[j]]:
+            order[j - 1], order[j] = order[j], order[j - 1]
+            j -= 1
+    sorted_evals = np.empty(n)
+    evecs = np.empty((n, n))
+    for i in range(n):
+        sorted_evals[i] = evals[order[i]]
+        for k in range(n):
+            evecs[k, i] = v[k, order[i]]
+    return sorted_evals, evecs
+
+
+@njit(cache=True, nogil=True)
+def product_parameters(M: np.ndarray, Z: np.ndarray, C: np.ndarray) -> tuple:
+    """``(Z', M')``, ascending, of the exponent ``M diag(Z) M^T + C`` (``C`` symmetric): the product of
+    ``Bingham(M, Z)`` with the likelihood ``exp(x^T C x)`` (QBF paper, sec. 5, eq. 3)."""
+    a = np.empty((4, 4))
+    for i in range(4):
+        for j in range(i, 4):
+            s = 0.0
+            for k in range(4):
+                s += M[i, k] * Z[k] * M[j, k]
+            s += 0.5 * (C[i, j] + C[j, i])
+            a[i, j] = s
+            a[j, i] = s
+    return symmetric_eigh(a)
+
+
+@njit(cache=True, nogil=True)
+def rotated_right(u: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``R(u) M``: the principal directions of ``x (x) u`` (QBF paper, sec. 5), ``R(u) p = p (x) u``."""
+    w, x, y, z = u[0], u[1], u[2], u[3]
+    out = np.empty((4, 4))
+    for j in range(4):
+        pw, px, py, pz = M[0, j], M[1, j], M[2, j], M[3, j]
+        out[0, j] = pw * w - px * x - py * y - pz * z
+        out[1, j] = pw * x + px * w + py * z - pz * y
+        out[2, j] = pw * y - px * z + py * w + pz * x
+        out[3, j] = pw * z + px * y - py * x + pz * w
+    return out
+
+
+@njit(cache=True, nogil=True)
+def rotated_left(u: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``L(u) M``: the principal directions of ``u (x) x`` (QBF paper, sec. 5), ``L(u) p = u (x) p``."""
+    w, x, y, z = u[0], u[1], u[2], u[3]
+    out = np.empty((4, 4))
+    for j in range(4):
+        pw, px, py, pz = M[0, j], M[1, j], M[2, j], M[3, j]
+        out[0, j] = w * pw - x * px - y * py - z * pz
+        out[1, j] = w * px + x * pw + y * pz - z * py
+        out[2, j] = w * py - x * pz + y * pw + z * px
+        out[3, j] = w * pz + x * py - y * px + z * pw
+    return out
+
+
+@njit(cache=True, nogil=True)
+def sorted_concentrations(M: np.ndarray, z3: np.ndarray) -> tuple:
+    """``(M', Z', ok)``: the columns ``M[:, :3]`` sorted by ``z3`` ascending (stable), ``M[:, 3]`` last, ``Z' =
+    (sorted z3, 0)``; ``ok`` is False unless every ``z3`` is finite and ``<= 0``."""
+    ok = True
+    for i in range(3):
+        if not (z3[i] <= 0.0 and math.isfinite(z3[i])):
+            ok = False
+    order = np.arange(3)
+    for i in range(1, 3):
+        j = i
+        while j > 0 and z3[order[j - 1]] > z3[order[j]]:
+            order[j - 1], order[j] = order[j], order[j - 1]
+            j -= 1
+    out = np.empty((4, 4))
+    Z = np.zeros(4)
+    for i in range(3):
+        Z[i] = z3[order[i]]
+        for k in range(4):
+            out[k, i] = M[k, order[i]]
+    for k in range(4):
+        out[k, 3] = M[k, 3]
+    return out, Z, ok
+
+
+@njit(cache=True, nogil=True)
+def down_alignment_sq(M: np.ndarray) -> np.ndarray:
+    """Squared cosine, per principal direction ``m_i`` (``i < 3``), between the body axis ``vec(mode^* m_i)``
+    and world down (NED ``z``) seen in the body, ``vec(mode^* k mode)``: left-multiplying by ``mode^*`` is
+    orthogonal, so it is ``(m_i . (k mode))^2``, with ``k (x) mode = (-m_z, -m_y, m_x, m_w)`` for the mode ``M[:, 3]``."""
+    down = (-M[3, 3], -M[2, 3], M[1, 3], M[0, 3])
+    out = np.empty(3)
+    for i in range(3):
+        cos = down[0] * M[0, i] + down[1] * M[1, i] + down[2] * M[2, i] + down[3] * M[3, i]
+        out[i] = cos * cos
+    return out
