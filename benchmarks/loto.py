@@ -219,14 +219,13 @@ def run(paths: list[Path], base: FuserConfig, candidates: list[dict], workdir: P
         runs.append(row)
     n = len(trials)
     totals = np.array([[_rms(s.errors_at_time)["total"] for s in row] for row in runs])  # candidate x trial
-    fits = []
-    for row in runs:
-        params, cov, ll = grid_scores([s.at_time for s in row])
-        fits.append((params, cov, ll))
+    fits: dict[int, tuple] = {}  # the model error's grid, scored once per candidate some fold chooses
     per_trial = []
     for k, t in enumerate(trials):
         others = np.arange(n) != k
         ci = int(np.argmin(totals[:, others].mean(axis=1)))
+        if ci not in fits:
+            fits[ci] = grid_scores([s.at_time for s in runs[ci]])
         params, cov, ll = fits[ci]
         h, tl, r = params[best(cov, ll, others, COVERAGE_WITHIN)]
         model_error = ModelErrorSettings(heading_deg=h, tilt_deg=tl, rate_s=r)
@@ -240,7 +239,9 @@ def run(paths: list[Path], base: FuserConfig, candidates: list[dict], workdir: P
             "seconds": s.seconds, "samples": len(t.inputs), "vqf_us": t.vqf_us,
         })
     in_sample = [score(runs[0][k].at_time, base.model_error)[0].tolist() for k in range(n)]
-    return {"per_trial": per_trial, "in_sample_cover": in_sample, "trials": trials, "runs": runs, "candidates": candidates}
+    candidate_totals = [{"candidate": c, "total": float(totals[i].mean())} for i, c in enumerate(candidates)]
+    return {"per_trial": per_trial, "in_sample_cover": in_sample, "trials": trials, "runs": runs, "candidates": candidates,
+            "candidate_totals": candidate_totals}
 
 
 def widened_sigma_deg(states: TrialStates, model_error: ModelErrorSettings) -> np.ndarray:
@@ -272,6 +273,9 @@ def table(result: dict, note: str) -> list[str]:
     lines.append(f"| **mean** | {m3('at_time')} | {m3('held')} | {m3('vqf')} | "
                  f"{mean('at_time', 'total') / mean('vqf', 'total'):.2f}, {mean('held', 'total') / mean('vqf', 'total'):.2f} | "
                  f"{pc(mc('cover_at_time'))} | {pc(mc('cover_held'))} | |")
+    if len(result["candidates"]) > 1:
+        lines += ["", "Candidates (mean total at their time over all trials, for reference; each fold chose on its other trials): "
+                  + ", ".join(f"{c['candidate']} {c['total']:.2f}" for c in result["candidate_totals"]) + "."]
     lines += ["", *criteria(rows), "",
               f"In-sample, with the configured model error (fitted on all eight): 50 / 90 / 95 % regions "
               f"{pc(np.mean(result['in_sample_cover'], axis=0))} on average.",

@@ -3,7 +3,7 @@
 import numpy as np
 
 from drivers.samples import ImuSample, SourceId
-from fuser.config import FuserConfig
+from fuser.config import ExtrapolationSettings, FuserConfig
 from fuser.loop import FusionLoop
 
 A = SourceId("mavlink", 1, 1, 0)
@@ -16,7 +16,8 @@ def imu(t_ns, src=A, gyro=(0.0, 0.0, 0.0)):
 
 
 def test_ticks_on_a_grid_and_each_sample_in_exactly_one_tick():
-    loop = FusionLoop(FuserConfig(rate_hz=100.0, latency_ms=0.0))
+    # stamped at the tick itself (by default an estimate is stamped where fuser.model.extrapolation carries it)
+    loop = FusionLoop(FuserConfig(rate_hz=100.0, latency_ms=0.0, extrapolation=ExtrapolationSettings(to="tick")))
     estimates = []
     for k in range(1, 401):  # 1 s of 400 Hz, received 1 ms after sending
         t = 5_000_000_000 + k * 2_500_000

@@ -16,10 +16,11 @@ or a local computed above it.
    and one eigendecomposition (QBF paper, sec. 5, eq. 3); only the first tilt
    ever measured is applied at once, for the heading that follows it.
 3. **Bias** (:mod:`~fuser.model.rest`, :mod:`~fuser.model.bias`): measured at
-   rest, learnt from the tick's correction in slow motion.
-4. **Publish**: the posterior widened by the model error
-   (:mod:`fuser.model_error`), by the error of a gyro rate held since the
-   last sample, and while an IMU is kept out.
+   rest, learnt in motion from the tick's tilt correction.
+4. **Publish**: the posterior carried ahead of the tick to the instant it
+   is published (:mod:`~fuser.model.extrapolation`), widened by the model
+   error (:mod:`fuser.model_error`), by the error of a gyro rate held since
+   the last sample, and while an IMU is kept out.
 
 The state is at the tick's end: the gyro carries it over the whole tick, and
 every reading is turned into the body frame of that instant.
@@ -41,8 +42,9 @@ from fuser.model import bias as bias_feedback
 from fuser.model.attitude import attitude_in_use, update_attitude
 from fuser.model.body_frame import lags_s, mean_in_state_body
 from fuser.model.diagnostics import UpdateDiagnostic, counter_name
+from fuser.model.extrapolation import ahead_ns, carry_ns, lead
 from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
-from fuser.model.heading import FieldReference, heading_sigma_rad, update_heading
+from fuser.model.heading import FieldReference, heading_sigma_rad, heading_time_constant_s, update_heading
 from fuser.model.imu_check import check_imus
 from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
@@ -72,6 +74,8 @@ class FusionModel:
         self.counters: Counter[str] = Counter()
         """Events so far: readings gated by reason, gyro gaps, rest ticks, ..."""
         self._field = FieldReference.of(config.mag.field_ned_gauss)
+        self._ahead_ns = ahead_ns(config)
+        self._carry_ns = carry_ns(config)
         self._state = initial_state(config)
 
     @property
@@ -136,8 +140,8 @@ class FusionModel:
                 if rest.at_rest:
                     events.append("rest_ticks")
                     bias = measure_bias(cfg.rest, rest, bias, interval)
-            reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel,
-                                     tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2), predicted_q, interval)
+            tilt_tau = tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2)
+            reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tilt_tau, predicted_q, interval)
             gravity, accel_trusted = reading.state, reading.trusted
             diagnostics.append(reading.diagnostic)
             if reading.exponent is not None:
@@ -145,15 +149,18 @@ class FusionModel:
             if reading.apply_now:
                 belief, exponent = _multiplied(belief, exponent), np.zeros((4, 4))
         mag = self._mag_in_state_body(tick, imu, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
+        heading_tau, heading_fused = None, False
         if mag is not None:
             since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
-            heading = HeadingState(heading.gated_s, tick.t_ns)
+            heading = HeadingState(heading.gated_s, tick.t_ns, heading.field)
             sigma = heading_sigma_rad(cfg.mag, cfg.bias, gravity.converged, context, bias.variance_rad2_s2, since)
-            h = update_heading(cfg.mag, cfg.updates, self._field, heading, gravity, context, mag, belief.mode, sigma)
+            rate_lp = rate if rest.gyro_lp_rad_s is None else float(np.linalg.norm(rest.gyro_lp_rad_s - bias.estimate_rad_s))
+            h = update_heading(cfg.mag, cfg.updates, self._field, heading, gravity, context, mag, belief.mode, sigma, rate_lp, since)
             heading = h.state
             diagnostics.append(h.diagnostic)
             if h.exponent is not None:
                 exponent = exponent + h.exponent
+                heading_tau, heading_fused = heading_time_constant_s(sigma, context, since), h.diagnostic.outcome == "fused"
         attitudes = [x for x in tick.samples if isinstance(x, AttitudeSample)]
         attitude_source = s.attitude_source
         if attitudes and attitude_in_use(cfg.attitude, track, tick.t_ns):
@@ -167,20 +174,27 @@ class FusionModel:
             events += ["attitude_unused"] * len(attitudes)
         posterior = _multiplied(belief, exponent)
 
-        # 3. bias feedback from the tick's correction
-        if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, rate, context.prior_doubt_deg):
-            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, interval)
+        # 3. bias learnt in motion from the tick's tilt correction (VQF's motion bias estimation)
+        if imu:
+            bias = bias_feedback.low_pass(bias, predicted_q, tilt_tau, heading_tau, interval)
+            if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, context.prior_doubt_deg):
+                heading_rows = ((heading_tau, math.radians(cfg.mag.error_deg), cfg.mag.correlation_s)
+                                if heading_fused and heading_tau is not None and math.isfinite(heading_tau) else None)
+                bias = bias_feedback.learn_in_motion(cfg.bias, bias, predicted_q, posterior.mode, interval, tilt_tau, heading_rows,
+                                                     rate, cfg.gyro.scale_error_fraction)
 
-        # 4. publish: widened by the model error, the error of a rate held since the last sample, and an IMU kept out
-        widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
-        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening)
+        # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of that held rate, and an IMU kept out
+        ahead = lead(cfg.gyro, track, bias.estimate_rad_s, tick.t_ns, self._carry_ns)
+        widening = motion.hold_variance_rad2 + ahead.variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
+        carried = posterior if ahead.rotation is None else posterior.rotate_right(ahead.rotation)
+        published = model_error.published(cfg.model_error, carried, error_state.rate_sq, cfg.mag.enabled, widening)
 
         self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
                                   rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
                                   model_error=error_state)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
-        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))
+        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters), self._ahead_ns)
 
     def _mag_in_state_body(self, tick: TickInput, imu: list[tuple[ImuSample, int]], body_rate: np.ndarray | None) -> np.ndarray | None:
         """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body
