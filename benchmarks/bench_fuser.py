@@ -1,6 +1,7 @@
 """Fuser performance: replay throughput and live publish latency, against the issue's targets.
 
-    python benchmarks/bench_fuser.py            # both, prints a table (about a minute)
+    python benchmarks/bench_fuser.py            # all three, prints one table (about two minutes)
+    python benchmarks/bench_fuser.py --skip-live --skip-replay   # the per-message costs only
     python benchmarks/bench_fuser.py --profile  # and where replay time goes (cProfile)
 
 (a) Replay throughput, end to end: decode every input from the MCAP, run the
@@ -13,6 +14,16 @@
     to a subscriber process; latency from each tick's due time to its estimate
     handed to zenoh (LiveRunner's own measurement), p50/p99/max, and overruns.
     Target: p99 < 2 ms.
+(c) Cost per message of each I/O step of a replay, on the inputs of every log in
+    logs/ (and the estimates the simulated ones hold), fastest of five passes, each
+    beside the decode floor: bare pymavlink ``parse_buffer`` on the same samples
+    as MAVLink 2 bytes (one packet per call, as datagrams arrive):
+    MavlinkDecoder.feed of those bytes, ``dumps`` of a sample and of an estimate
+    (and its /pose), McapRecorder.write_message, read_log and decode_sample; and
+    VQF (``updateBatch``, the ``bench`` extra) on the same IMU samples.
+
+Every replay row stands beside the decode floor on that log's bytes and VQF on
+its samples, measured in the same run, so a loaded machine shows in all three.
 """
 
 from __future__ import annotations
@@ -26,20 +37,32 @@ import subprocess
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from drivers.mavlink_decode import MavlinkDecoder, dialect_module  # noqa: E402
+from drivers.mavlink_encode import MavlinkEncoder  # noqa: E402
+from drivers.samples import AttitudeSample, GnssSample, ImuSample, Sample  # noqa: E402
 from drivers.sim import SimConfig, simulate  # noqa: E402
-from fuser.config import FuserConfig, ZenohSettings  # noqa: E402
+from fuser.codec import Estimate, decode_sample, dumps, loads, sample_json  # noqa: E402
+from fuser.config import FuserConfig, ZenohSettings, load_config  # noqa: E402
 from fuser.pipeline import Pipeline  # noqa: E402
-from fuser.record import McapRecorder, read_log  # noqa: E402
+from fuser.record import INPUT_TOPICS, McapRecorder, RawMessage, pose_in_frame, read_log  # noqa: E402
 from fuser.replay import replay  # noqa: E402
 from fuser.simulate import run_sim  # noqa: E402
 
 REPLAY_TARGET = 10_000.0
 LATENCY_P99_TARGET_MS = 2.0
+PASSES = 5
+"""Per-message costs are the fastest of this many passes over all the messages."""
+VQF_MISSING = "vqf not installed: pip install -e '.[bench]'"
+"""Per-message costs are the fastest of this many passes over all the messages."""
 
 
 def free_port(kind: int = socket.SOCK_STREAM) -> int:
@@ -55,11 +78,18 @@ def sim_log(path: Path, seconds: float, imu_hz: float) -> None:
         run_sim(pipeline, simulate(SimConfig(duration_s=seconds, imu_rate_hz=imu_hz)), "mavlink", 0, [rec.write_truth])
 
 
+def config_for(log: Path) -> FuserConfig:
+    """The settings a log is replayed with: the .toml beside it (an imported log's earth field), else the defaults."""
+    toml = log.with_suffix(".toml")
+    return load_config(toml if toml.exists() else None)
+
+
 def bench_replay(log: Path, out: Path, repeats: int = 3) -> dict:
     """The fastest of ``repeats`` replays (as timeit does): on a shared machine the slower runs
     measure the other jobs, and one run of a 12 s log varies by 15%."""
     imu = len(read_log(log).of(["/input/imu"]))
-    fastest = min((replay(log, out, FuserConfig(), progress=None) for _ in range(repeats)), key=lambda s: s.seconds)
+    config = config_for(log)
+    fastest = min((replay(log, out, config, progress=None) for _ in range(repeats)), key=lambda s: s.seconds)
     return {"imu": imu, "samples": fastest.samples, "seconds": fastest.seconds, "imu_per_s": imu / fastest.seconds}
 
 
@@ -116,12 +146,190 @@ def bench_live(seconds: float, imu_hz: float, record: Path | None = None) -> dic
     return {"status": status, "sender_late": late}
 
 
+def fastest_us(run: Callable[[], int], passes: int = PASSES) -> float:
+    """Microseconds per item of the fastest of ``passes`` calls of ``run`` (which returns its item count)."""
+    best, count = float("inf"), 1
+    for _ in range(passes):
+        start = time.perf_counter()
+        count = run()
+        best = min(best, time.perf_counter() - start)
+    return best / max(count, 1) * 1e6
+
+
+@dataclass(frozen=True)
+class LogMessages:
+    """One log's messages as a replay meets them: stored JSON, decoded samples, the same samples as MAVLink."""
+
+    name: str
+    raw: list[RawMessage]
+    inputs: list[tuple[Sample, int]]
+    estimates: list[Estimate]
+    packets: list[bytes]
+    """Each MAVLink-encodable input as one MAVLink 2 packet (HIGHRES_IMU, ATTITUDE_QUATERNION, GPS_RAW_INT)."""
+
+
+def log_messages(log: Path, system: int) -> LogMessages:
+    """``system`` is the MAVLink sender id of the log's packets, one per log, so each log is its own stream."""
+    contents = read_log(log)
+    inputs = contents.inputs()
+    encoder = MavlinkEncoder(system=system)
+    packets = [encoder.encode(s) for s, _ in inputs if isinstance(s, (ImuSample, AttitudeSample, GnssSample))]
+    return LogMessages(log.name, contents.raw, inputs, contents.estimates(), packets)
+
+
+def parse_floor_us(packets: list[bytes]) -> float:
+    """Bare pymavlink: ``parse_buffer`` of each packet (the decode floor), microseconds per packet."""
+    def run() -> int:
+        parser = dialect_module("common").MAVLink(None)
+        parser.robust_parsing = True
+        return sum(len(parser.parse_buffer(p) or ()) for p in packets)
+
+    return fastest_us(run)
+
+
+def decoder_feed_us(packets: list[bytes]) -> float:
+    def run() -> int:
+        decoder = MavlinkDecoder()
+        return sum(len(decoder.feed(p)) for p in packets)
+
+    return fastest_us(run)
+
+
+def vqf_seconds(inputs: list[tuple[Sample, int]]) -> float | None:
+    """VQF's 9-D filter (6-D where the IMU has no magnetometer) on the IMU samples of one log: seconds
+    of the fastest pass, or None when vqf is not installed."""
+    try:
+        from vqf import VQF
+    except ImportError:
+        return None
+    imu = [s for s, _ in inputs if isinstance(s, ImuSample)]
+    gyr = np.ascontiguousarray([s.gyro_rad_s for s in imu], dtype=float)
+    acc = np.ascontiguousarray([s.accel_m_s2 for s in imu], dtype=float)
+    mag = np.ascontiguousarray([s.mag_gauss for s in imu], dtype=float) if all(s.mag_gauss for s in imu) else None
+    ts = float(np.median(np.diff([s.t_ns for s in imu]))) * 1e-9
+
+    def run() -> int:
+        VQF(ts).updateBatch(gyr, acc, mag)
+        return 1
+
+    return fastest_us(run) * 1e-6
+
+
+def message_costs(logs: list[LogMessages], tmp_dir: Path) -> list[tuple[str, str, str, str]]:
+    """Rows of the table: the cost of each step per message, over all logs, beside the decode floor."""
+    packets = [p for lm in logs for p in lm.packets]
+    inputs = [i for lm in logs for i in lm.inputs]
+    estimates = [e for lm in logs for e in lm.estimates]
+    raw = [m for lm in logs for m in lm.raw]
+    stored_inputs = [m for lm in logs for m in lm.raw if m.topic in INPUT_TOPICS]
+    floor = parse_floor_us(packets)
+    out = tmp_dir / "write.mcap"
+
+    def encode_samples() -> int:
+        for s, r in inputs:
+            sample_json(s, r)
+        return len(inputs)
+
+    def encode_estimates() -> int:
+        for e in estimates:
+            e.to_json()
+        return len(estimates)
+
+    def encode_poses() -> int:
+        for e in estimates:
+            dumps(pose_in_frame(e.t_ns, e.q_wxyz))
+        return len(estimates)
+
+    def write_messages() -> int:
+        with McapRecorder(out) as rec:
+            for m in raw:
+                rec.write_message(*m)
+        return len(raw)
+
+    def read_logs() -> int:
+        return read_log(out).records
+
+    def decode_inputs() -> int:
+        for m in stored_inputs:
+            decode_sample(m.topic, loads(m.data))
+        return len(stored_inputs)
+
+    costs = [
+        (f"MavlinkDecoder.feed, one packet a call ({len(packets):,} packets)", decoder_feed_us(packets)),
+        (f"sample_json, as the recorder encodes a sample ({len(inputs):,} samples)", fastest_us(encode_samples)),
+        (f"Estimate.to_json() ({len(estimates):,} estimates)", fastest_us(encode_estimates)),
+        ("dumps(pose_in_frame(...)), an estimate's /pose", fastest_us(encode_poses)),
+        (f"McapRecorder.write_message ({len(raw):,} messages, zstd chunks, close)", fastest_us(write_messages)),
+        ("read_log of those messages (chunks, CRCs, headers)", fastest_us(read_logs)),
+        (f"loads + decode_sample, as replay decodes ({len(stored_inputs):,} stored inputs)", fastest_us(decode_inputs)),
+    ]
+    rows = [(f"per message: pymavlink parse_buffer, the decode floor ({len(packets):,} packets)", f"{floor:.2f} us", "", "1.00x floor")]
+    rows += [(f"per message: {name}", f"{us:.2f} us", "", f"{us / floor:.2f}x floor") for name, us in costs]
+    peer = [vqf_seconds(lm.inputs) for lm in logs]
+    imu = sum(isinstance(s, ImuSample) for s, _ in inputs)
+    if None in peer:
+        rows.append(("per IMU sample: VQF", VQF_MISSING, "", ""))
+    else:
+        vqf = sum(peer) / imu * 1e6  # type: ignore[arg-type]
+        rows.append((f"per IMU sample: VQF updateBatch, the same samples ({imu:,})", f"{vqf:.2f} us", "", f"{vqf / floor:.2f}x floor"))
+    return rows
+
+
+def replay_rows(logs: list[Path], messages: dict[Path, LogMessages], tmp_dir: Path, sim: Path, sim_seconds: float) -> tuple[list, dict]:
+    """Per log: replay throughput against the target, beside the decode floor on its bytes and VQF on its samples."""
+    rows, results = [], {}
+    for log in logs:
+        r = results[log] = bench_replay(log, tmp_dir / "out.mcap")
+        lm = messages[log]
+        name = log.name if log != sim else f"simulated 400 Hz, {sim_seconds:g} s"
+        rows.append((f"replay {name}", f"{r['imu_per_s']:,.0f} IMU samples/s ({r['imu']:,} in {r['seconds']:.2f} s)",
+                     f">= {REPLAY_TARGET:,.0f}/s", f"{r['imu_per_s'] / REPLAY_TARGET:.2f}x target"))
+        floor = 1e6 / parse_floor_us(lm.packets)
+        rows.append(("  decode floor: parse_buffer on its inputs as MAVLink", f"{floor:,.0f} packets/s", "replay / floor",
+                     f"{r['samples'] / r['seconds'] / floor:.3f}x"))
+        vqf = vqf_seconds(lm.inputs)
+        if vqf is None:
+            rows.append(("  VQF on its IMU samples", VQF_MISSING, "", ""))
+        else:
+            rows.append(("  VQF on its IMU samples", f"{r['imu'] / vqf:,.0f} IMU samples/s", "replay / VQF", f"{vqf / r['seconds']:.4f}x"))
+    return rows, results
+
+
+def live_rows(seconds: float, record: Path | None) -> list[tuple[str, str, str, str]]:
+    live = bench_live(seconds, 400.0, record)
+    st = live["status"]
+    lat = st["latency"]
+    recording = ", recording" if record is not None else ""
+    rows = [
+        (f"live latency p50 ({st['estimates']} ticks, 400 Hz UDP in{recording})", f"{lat['p50_ms']:.3f} ms", "", ""),
+        ("live latency p99", f"{lat['p99_ms']:.3f} ms", f"< {LATENCY_P99_TARGET_MS:g} ms", f"{lat['p99_ms'] / LATENCY_P99_TARGET_MS:.2f}x of budget"),
+        ("live latency max", f"{lat['max_ms']:.3f} ms", "", ""),
+        ("live overruns", f"{st['runner'].get('overruns', 0)} of {st['estimates']} ticks", "0", ""),
+        ("live loop counters", str(st["loop"]), "", ""),
+    ]
+    if live["sender_late"]:
+        rows.append(("sender", "; ".join(live["sender_late"]), "", ""))
+    return rows
+
+
+def print_table(rows: list[tuple[str, str, str, str]]) -> None:
+    head = ("measure", "result", "against", "ratio")
+    widths = [max(len(r[i]) for r in rows + [head]) for i in range(4)]
+    line = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"  # noqa: E731
+    print(line(head))
+    print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
+    for r in rows:
+        print(line(r))
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", action="store_true", help="cProfile one replay and print where the time goes")
     parser.add_argument("--live-seconds", type=float, default=20.0, help="length of the live run (default: 20)")
     parser.add_argument("--sim-seconds", type=float, default=30.0, help="length of the 400 Hz simulated flight replayed (default: 30)")
     parser.add_argument("--skip-live", action="store_true")
+    parser.add_argument("--skip-replay", action="store_true")
+    parser.add_argument("--skip-messages", action="store_true", help="skip the per-message costs")
     parser.add_argument("--record", action="store_true", help="live run records to MCAP too, as `run --record` does")
     args = parser.parse_args()
 
@@ -131,33 +339,18 @@ def main() -> int:
         sim = tmp_dir / "sim_400hz.mcap"
         sim_log(sim, args.sim_seconds, 400.0)
         logs = sorted((ROOT / "logs").glob("*.mcap")) + [sim]
-        results = {}
-        for log in logs:
-            r = results[log] = bench_replay(log, tmp_dir / "out.mcap")
-            name = log.name if log != sim else f"simulated 400 Hz, {args.sim_seconds:g} s"
-            rows.append((f"replay {name}", f"{r['imu_per_s']:,.0f} IMU samples/s ({r['imu']:,} in {r['seconds']:.2f} s)",
-                         f">= {REPLAY_TARGET:,.0f}/s", f"{r['imu_per_s'] / REPLAY_TARGET:.2f}x"))
+        messages = {log: log_messages(log, system) for system, log in enumerate(logs, start=1)}
+        results: dict = {}
+        if not args.skip_replay:
+            replayed, results = replay_rows(logs, messages, tmp_dir, sim, args.sim_seconds)
+            rows += replayed
         if not args.skip_live:
-            live = bench_live(args.live_seconds, 400.0, tmp_dir / "live.mcap" if args.record else None)
-            st = live["status"]
-            lat = st["latency"]
-            recording = ", recording" if args.record else ""
-            rows.append((f"live latency p50 ({st['estimates']} ticks, 400 Hz UDP in{recording})", f"{lat['p50_ms']:.3f} ms", "", ""))
-            rows.append(("live latency p99", f"{lat['p99_ms']:.3f} ms", f"< {LATENCY_P99_TARGET_MS:g} ms",
-                         f"{lat['p99_ms'] / LATENCY_P99_TARGET_MS:.2f}x of budget"))
-            rows.append(("live latency max", f"{lat['max_ms']:.3f} ms", "", ""))
-            rows.append(("live overruns", f"{st['runner'].get('overruns', 0)} of {st['estimates']} ticks", "0", ""))
-            rows.append(("live loop counters", str(st["loop"]), "", ""))
-            if live["sender_late"]:
-                rows.append(("sender", "; ".join(live["sender_late"]), "", ""))
-        widths = [max(len(r[i]) for r in rows + [("measure", "result", "target", "ratio")]) for i in range(4)]
-        line = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"  # noqa: E731
-        print(line(("measure", "result", "target", "ratio")))
-        print("|" + "|".join("-" * (w + 2) for w in widths) + "|")
-        for r in rows:
-            print(line(r))
-        if args.profile or min(r["imu_per_s"] for r in results.values()) < REPLAY_TARGET:
-            print(f"\nreplay below target: cProfile of the simulated 400 Hz replay\n")
+            rows += live_rows(args.live_seconds, tmp_dir / "live.mcap" if args.record else None)
+        if not args.skip_messages:
+            rows += message_costs(list(messages.values()), tmp_dir)
+        print_table(rows)
+        if args.profile or (results and min(r["imu_per_s"] for r in results.values()) < REPLAY_TARGET):
+            print("\nreplay below target: cProfile of the simulated 400 Hz replay\n")
             print(profile_replay(sim, tmp_dir / "prof.mcap"))
     return 0
 

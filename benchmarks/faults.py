@@ -22,9 +22,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "benchmarks")]
 
 from broad import RESULTS, model_revision, write_section  # noqa: E402
-from fault_flights import FAULTS  # noqa: E402
+from fault_flights import FAULTS, saturation_in_turn  # noqa: E402
 
-COUNTERS = {"saturation": "gyro_saturated", "rogue_imu": "imu_disagree", "attitude_jump": "attitude_gated_jump"}
+FLIGHTS = {**FAULTS, "saturation_in_turn_without_gnss": lambda seed: saturation_in_turn(seed, gnss=False)}
+COUNTERS = {"saturation": "gyro_saturated", "rogue_imu": "imu_disagree", "attitude_jump": "attitude_gated_jump",
+            "saturation_in_turn": "gyro_saturated", "saturation_in_turn_without_gnss": "gyro_saturated"}
 SEEDS = (0, 1, 2, 3)
 
 
@@ -33,24 +35,29 @@ def main(argv=None) -> int:
     ap.add_argument("--no-write", action="store_true", help="do not update benchmarks/RESULTS.md")
     args = ap.parse_args(argv)
     lines = [
-        "| fault | error before | error while it lasts: max / RMS | reported uncertainty then (before) | recovered to < 5 deg after | counted |",
-        "|---|---|---|---|---|---|",
+        "| fault | error before | error while it lasts: max / RMS | reported uncertainty then (before) | recovered to < 5 deg after | "
+        "error above twice the reported uncertainty after it | counted |",
+        "|---|---|---|---|---|---|---|",
     ]
-    for name, flight in FAULTS.items():
+    for name, flight in FLIGHTS.items():
         runs = [flight(seed=seed) for seed in SEEDS]
         s = [r.summary() for r in runs]
         rng = lambda key, fmt="{:.1f}": "–".join(fmt.format(f(v[key] for v in s)) for f in (min, max))  # noqa: E731
         counted = [r.counters.get(COUNTERS[name], 0) for r in runs]
         lines.append(f"| {runs[0].name} ({runs[0].end_s - runs[0].start_s:.0f} s) | {rng('error_before_deg')}° | "
                      f"{rng('error_during_max_deg')}° / {rng('error_during_rms_deg')}° | {rng('uncertainty_during_deg')}° "
-                     f"({rng('uncertainty_before_deg')}°) | {rng('recovery_s')} s | {min(counted)}–{max(counted)} `{COUNTERS[name]}` |")
+                     f"({rng('uncertainty_before_deg')}°) | {rng('recovery_s')} s | {rng('overconfident_after_s')} s | "
+                     f"{min(counted)}–{max(counted)} `{COUNTERS[name]}` |")
         print(lines[-1], flush=True)
     lines += ["", f"Seeds {', '.join(map(str, SEEDS))} (ranges over them); model at git {model_revision()}. "
                   "Before these faults were handled (git 14a9397, seed 0, the same flights): a saturated gyro left the estimate "
                   "176° off reporting 7°; a rogue IMU 64° off reporting 6°, not recovered by the end; a jumping attitude source "
-                  "was followed, 30° off reporting 6°. Not met: in a sustained banked turn (the same saturation at 12 s of the "
-                  "programme) the estimate re-converges without GNSS to the accelerometer's tilt, which in a coordinated turn is "
-                  "the bank: 18° off while reporting 4°, 15.6 s to recover; the velocity-aided gravity update is what fixes it."]
+                  "was followed, 30° off reporting 6°. In a sustained banked turn (the same saturation at 12 s of the programme, "
+                  "scored to 25 s) the accelerometer alone re-converges to its tilt, which in a turn is the bank's (phase 1: 18° off "
+                  "while reporting 4°, 15.6 s to recover); with the GNSS velocity the estimate recovers within about 4 s. Not met: "
+                  "for 2-3 s after the fault the error is more than twice the reported uncertainty: the strapdown frame broke, and "
+                  "the gravity update restarts from raw accelerometer readings (its fast start), which in the turn point 15° off "
+                  "and are taken with confidence until the GNSS-aided low-pass is back."]
     if not args.no_write:
         write_section(RESULTS, "faults", [f"## Faults the filter admits ({time.strftime('%Y-%m-%d')})", "",
                                           "Simulated hover, fault from 4 s, scored against the simulator's truth "

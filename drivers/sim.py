@@ -39,7 +39,10 @@ random rotation. GNSS: a fix every ``1/gnss_rate_hz`` s, measured at the fix
 time (its ``t_ns``) and sent ``gnss_latency_s`` later (with the first IMU
 sample at or after that time); velocity = truth + white noise, position =
 truth + a first-order Gauss-Markov error (horizontal sigma, twice that
-vertically), as receivers' position errors wander over tens of seconds.
+vertically), as receivers' position errors wander over tens of seconds. An
+autopilot's navigation solution (GLOBAL_POSITION_INT) is sent with each fix
+too: its EKF predicts to the time it sends, so its velocity is the truth *at
+the send time* plus white noise, stamped with that time (no latency).
 """
 
 from __future__ import annotations
@@ -61,7 +64,6 @@ from .mavlink_encode import MavlinkEncoder
 from .samples import AttitudeSample, GnssSample, ImuSample, Sample, SourceId
 
 GRAVITY_M_S2 = 9.80665
-EARTH_FIELD_NED_GAUSS = (0.21, 0.0, 0.43)
 WGS84_A_M = 6378137.0
 WGS84_E2 = 6.69437999014e-3
 GNSS_FIX_3D = 3
@@ -93,8 +95,9 @@ class SimConfig:
     accel_range_m_s2: float = 156.9
     dropout_probability: float = 0.002
     attitude_error_rad: float = 0.01
-    mag_field_ned_gauss: tuple[float, float, float] | None = EARTH_FIELD_NED_GAUSS
-    """The earth field the magnetometer reads (north, east, down); None: the WMM's at the flight's position and date."""
+    mag_field_ned_gauss: tuple[float, float, float] | None = None
+    """The earth field the magnetometer reads (north, east, down); None (the default): the World Magnetic Model's
+    at the flight's position and date, declination included, as a real magnetometer reads it."""
     rotor_drag_1_s: float = 0.35
     """Multirotor: specific force per m/s of body-horizontal velocity (linear rotor drag)."""
     vertical_damping_1_s: float = 1.0
@@ -166,6 +169,8 @@ class GnssTrack:
     lon_deg: Array
     alt_m: Array
     speed_accuracy_m_s: float
+    solution_vel_ned_m_s: Array
+    """The autopilot's navigation solution sent with fix ``i``: its velocity at the send time (IMU sample ``index[i]``)."""
     fix_type: int = GNSS_FIX_3D
 
     def cut(self, first: int, last: int) -> GnssTrack:
@@ -174,6 +179,7 @@ class GnssTrack:
         return dataclasses.replace(
             self, index=self.index[keep] - first, t_ns=self.t_ns[keep], vel_ned_m_s=self.vel_ned_m_s[keep],
             lat_deg=self.lat_deg[keep], lon_deg=self.lon_deg[keep], alt_m=self.alt_m[keep],
+            solution_vel_ned_m_s=self.solution_vel_ned_m_s[keep],
         )
 
 
@@ -382,9 +388,10 @@ def _gnss(config: SimConfig, rng: np.random.Generator, t_ns: NDArray[np.int64], 
     for i in range(m):
         la, lo, al = ned_to_geodetic(float(lat[i]), float(lon[i]), float(alt[i]), err[i : i + 1])
         lat[i], lon[i], alt[i] = la[0], lo[0], al[0]
+    solution = traj.vel_ned_true_m_s[send] + config.gnss_vel_noise_m_s * rng.standard_normal((m, 3))
     return GnssTrack(
         index=send.astype(np.int64), t_ns=(t_ns[fix] // 1000) * 1000, vel_ned_m_s=vel,
-        lat_deg=lat, lon_deg=lon, alt_m=alt, speed_accuracy_m_s=config.gnss_vel_noise_m_s,
+        lat_deg=lat, lon_deg=lon, alt_m=alt, speed_accuracy_m_s=config.gnss_vel_noise_m_s, solution_vel_ned_m_s=solution,
     )
 
 
@@ -458,24 +465,29 @@ def simulate(config: SimConfig = SimConfig()) -> Flight:
 SIM_SOURCE = SourceId("sim", 1, 1, 0)
 
 
-def _gnss_samples(flight: Flight, source: SourceId) -> dict[int, list[GnssSample]]:
-    """The GNSS samples sent with each IMU index."""
+def _gnss_samples(flight: Flight, source: SourceId, solution: bool) -> dict[int, list[GnssSample]]:
+    """The GNSS samples sent with each IMU index: the receiver's fixes, or the autopilot's navigation solutions
+    (``solution``: stamped at the send time, no speed accuracy, ``filtered``)."""
     out: dict[int, list[GnssSample]] = {}
     g = flight.gnss
     if g is None:
         return out
-    for k, t, v, lat, lon, alt in zip(g.index.tolist(), g.t_ns.tolist(), g.vel_ned_m_s.tolist(), g.lat_deg.tolist(),
-                                      g.lon_deg.tolist(), g.alt_m.tolist()):
-        out.setdefault(k, []).append(GnssSample(t, g.fix_type, tuple(v), True, g.speed_accuracy_m_s, lat, lon, alt, False, source))  # type: ignore[arg-type]
+    t_send = flight.t_ns[g.index]
+    vel = g.solution_vel_ned_m_s if solution else g.vel_ned_m_s
+    times = ((t_send // 1000) * 1000 if solution else g.t_ns).tolist()
+    accuracy = None if solution else g.speed_accuracy_m_s
+    for k, t, v, lat, lon, alt in zip(g.index.tolist(), times, vel.tolist(), g.lat_deg.tolist(), g.lon_deg.tolist(), g.alt_m.tolist()):
+        out.setdefault(k, []).append(GnssSample(t, g.fix_type, tuple(v), True, accuracy, lat, lon, alt, solution, source))  # type: ignore[arg-type]
     return out
 
 
-def samples(flight: Flight, source: SourceId = SIM_SOURCE) -> Iterator[tuple[int, Array, list[Sample]]]:
-    """Per IMU tick: (true time ns, true q_wxyz, the samples the vehicle emits at that tick): IMU, attitude, GNSS."""
+def samples(flight: Flight, source: SourceId = SIM_SOURCE, gnss_solution: bool = False) -> Iterator[tuple[int, Array, list[Sample]]]:
+    """Per IMU tick: (true time ns, true q_wxyz, the samples the vehicle emits at that tick): IMU, attitude, GNSS
+    (the receiver's fixes, or with ``gnss_solution`` the autopilot's navigation solutions)."""
     is_attitude = np.zeros(len(flight.t_ns), dtype=bool)
     is_attitude[flight.attitude_index] = True
     q_attitude = iter(flight.q_attitude.tolist())
-    gnss = _gnss_samples(flight, source)
+    gnss = _gnss_samples(flight, source, gnss_solution)
     t_all, gyro, accel, mag = (a.tolist() for a in (flight.t_ns, flight.gyro_rad_s, flight.accel_m_s2, flight.mag_gauss))
     for k, t in enumerate(t_all):
         out: list[Sample] = []
@@ -499,26 +511,23 @@ def mavlink_stream(
     """Per IMU tick: (true time, true q, MAVLink bytes sent at that tick), PX4-style by default.
 
     ArduPilot sends ``imu_message="RAW_IMU"`` and ``attitude_message="ATTITUDE"``. GNSS goes as the
-    receiver's GPS_RAW_INT (ground speed and course, no vertical velocity) or, with
-    ``gnss_message="GLOBAL_POSITION_INT"``, as a NED velocity.
+    receiver's GPS_RAW_INT (ground speed and course, no vertical velocity), GPS_INPUT or HIL_GPS (NED
+    velocity), or, with ``gnss_message="GLOBAL_POSITION_INT"``, as the autopilot's navigation solution.
     """
     encoder = MavlinkEncoder(system, component)
     message = {ImuSample: imu_message, AttitudeSample: attitude_message, GnssSample: gnss_message}
-    for t, q, tick in samples(flight):
+    for t, q, tick in samples(flight, gnss_solution=gnss_message == "GLOBAL_POSITION_INT"):
         yield t, q, b"".join(encoder.encode(s, message[type(s)]) for s in tick)
 
 
 def dronecan_stream(flight: Flight, node_id: int = 10) -> Iterator[tuple[int, Array, list[can.Message]]]:
-    """Per IMU tick: (true time, true q, CAN frames sent at that tick): RawIMU, MagneticFieldStrength2, Solution.
-
-    GNSS is not sent on CAN yet (uavcan.equipment.gnss.Fix2 has no encoder in ``drivers`` so far).
-    """
+    """Per IMU tick: (true time, true q, CAN frames sent at that tick): RawIMU, MagneticFieldStrength2, Solution,
+    and the receiver's fixes as uavcan.equipment.gnss.Fix2 (NED velocity, its speed accuracy as the velocity
+    covariance, stamped with the fix time on the node's time base)."""
     transfer_ids: dict[type, int] = {}
     for t, q, tick in samples(flight):
         frames: list[can.Message] = []
         for s in tick:
-            if isinstance(s, GnssSample):
-                continue
             tid = transfer_ids.get(type(s), 0)
             transfer_ids[type(s)] = tid + 1
             frames += encode_dronecan(s, node_id, tid)

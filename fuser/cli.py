@@ -41,6 +41,7 @@ from typing import Any, Callable, NoReturn, Sequence
 
 from drivers.base import SourceError
 from drivers.scenarios import SCENARIOS
+from fuser import batch
 from fuser.config import FuserConfig, load_config
 from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError
 from fuser.outputs import add_options as add_output_options
@@ -244,14 +245,14 @@ def _add_replay(sub: Any) -> None:
     p = sub.add_parser("replay", help="replay a recorded MCAP or .tlog through the loop, as fast as possible",
                        description="Replay a log (MCAP recorded by bingham-fuser, or a MAVLink .tlog) through the same loop on "
                                    "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes. A damaged "
-                                   "MCAP replays every chunk that can be read, and says what it skipped.")
+                                   "MCAP replays every chunk that can be read, and says what it skipped. Many logs: --out-dir DIR, "
+                                   "in parallel processes (--jobs) or on a Dask cluster (--dask).")
     p.set_defaults(handler=_cmd_replay, vehicle=None)  # no zenoh here: the vehicle name does not apply
     _verbosity(p)
     _config_file(p)
     _fusion_options(p)
     _link(p)
-    p.add_argument("log", help="input log (.mcap or .tlog)")
-    p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="where to write the replayed estimates")
+    batch.add_replay_arguments(p)
 
 
 def _add_import(sub: Any) -> None:
@@ -410,6 +411,18 @@ def _load_config(args: argparse.Namespace) -> FuserConfig | None:
         raise UsageError(f"bad configuration{f' in {args.config}' if args.config else ''}: {e}") from e
 
 
+def _beside_ros2_router(config: FuserConfig, args: argparse.Namespace) -> FuserConfig:
+    """With ``--ros2`` through a router and the zenoh endpoints left at their defaults, the fuser's own zenoh
+    session joins that router as well instead of listening on its port (7447 both): one router, no clash."""
+    ros2 = config.ros2
+    wants_ros2 = getattr(args, "ros2", False) or ros2.enabled
+    defaults = FuserConfig().zenoh
+    if not wants_ros2 or not ros2.connect_to_router or config.zenoh != defaults or getattr(args, "no_zenoh", False):
+        return config
+    log.info("zenoh: publishing through the ROS 2 router %s (not listening on its port)", ros2.router_endpoint)
+    return dataclasses.replace(config, zenoh=dataclasses.replace(defaults, listen=(), connect=(ros2.router_endpoint,)))
+
+
 def _publisher(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
     """The zenoh publisher, open, or a one-line error naming the endpoint and what to do instead."""
     if getattr(args, "no_zenoh", False):
@@ -476,6 +489,7 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         _check_output(args.record, "--record")
     clock = WallClock.start(args.speed) if args.speed > 0 else None
     with ExitStack() as stack:
+        config = _beside_ros2_router(config, args)
         pub = _publisher(stack, config, args)
         rec = None
         if args.record:
@@ -537,6 +551,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
             extra = {} if interface in CAN_WITHOUT_BITRATE else {"bitrate": args.bitrate or DEFAULT_BITRATE}
             sources[f"can:{spec}"] = _open_source(stack, f"CAN bus {spec}",
                                                   partial(DroneCanSource, interface=interface, channel=channel, **extra))
+        config = _beside_ros2_router(config, args)
         pub = _publisher(stack, config, args)
         clock = WallClock.start()
         rec = None
@@ -568,12 +583,15 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
 def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.replay import replay
 
+    if batch.is_batch(args):
+        return batch.command(args, config)
+    log = args.log[0]
     _check_output(args.output, "--output")
-    summary = replay(args.log, args.output, config)
+    summary = replay(log, args.output, config)
     if summary.skipped:
-        _warn(f"{args.log} is damaged: skipped {summary.skipped.describe()}; replayed the rest")
+        _warn(f"{log} is damaged: skipped {summary.skipped.describe()}; replayed the rest")
     elif summary.incomplete:
-        _warn(f"{args.log} is incomplete ({summary.incomplete}): replayed its complete chunks")
+        _warn(f"{log} is incomplete ({summary.incomplete}): replayed its complete chunks")
     if summary.not_recorded:
         _warn(f"{sum(summary.not_recorded.values())} records could not be stored in {args.output} and were left out "
               f"({', '.join(f'{k}={v}' for k, v in sorted(summary.not_recorded.items()))})")

@@ -40,8 +40,10 @@ __all__ = [
     "BiasSettings",
     "ExtrapolationSettings",
     "FuserConfig",
+    "GnssSettings",
     "GyroSettings",
     "ImuCheckSettings",
+    "LatencySettings",
     "MagSettings",
     "ModelErrorSettings",
     "Range",
@@ -299,8 +301,21 @@ class MagSettings(Settings):
 
     enabled: bool = True
     """Fuse magnetometer headings (false: 6-D fusion, heading from the gyro only)."""
-    field_ned_gauss: tuple[float, float, float] = (0.21, 0.0, 0.43)
-    """Expected earth field (north, east, down): the heading reference and the norm and dip gates'."""
+    field_ned_gauss: tuple[float, float, float] | None = None
+    """The earth field (north, east, down, gauss; north is true north, so the east component carries the
+    declination): the heading reference and the norm and dip gates'. A configured field always wins
+    (``field_source`` ``"config"``). None, the default, means *not configured*: the World Magnetic Model's
+    field at the first GNSS fix with a position (``"wmm"``; :mod:`fuser.model.field`), and until such a
+    fix (or without GNSS) ``fallback_field_ned_gauss`` (``"fallback"``)."""
+    fallback_field_ned_gauss: tuple[float, float, float] = (0.21, 0.0, 0.43)
+    """The reference while no field is configured and no GNSS position is known: a mid-latitude field
+    without declination (central Europe's norm and dip), so the heading is then magnetic, not true."""
+    wmm_decimal_year: Annotated[float, Range(ge=2010, lt=2030, unit="year")] | None = None
+    """Date at which the WMM is evaluated. None: the GNSS fix's own time when it is a Unix time, else the
+    loop's timeline when that is one (the host's clock live, a log's receive times in replay), else
+    ``wmm_undated_decimal_year`` (a simulated flight on its own clock, ``sim --speed 0``)."""
+    wmm_undated_decimal_year: Annotated[float, Range(ge=2010, lt=2030, unit="year")] = 2026.5
+    """The WMM's date when no time in the input is a Unix time (the declination moves about 0.1 deg a year)."""
     sigma_rad: Annotated[float, Range(gt=0, unit="rad")] = 0.3
     """Heading noise per tick until the state has converged, and the least sigma the innovation gate assumes."""
     error_deg: Annotated[float, Range(gt=0, unit="deg")] = 2.0
@@ -341,8 +356,16 @@ class MagSettings(Settings):
     """See ``max_rejection_s`` (magRejectionFactor)."""
 
     def _validate(self) -> None:
-        if math.hypot(*self.field_ned_gauss) == 0.0:
-            raise ValueError(f"{self.section}.field_ned_gauss must not be zero, got {list(self.field_ned_gauss)!r}")
+        for key in ("field_ned_gauss", "fallback_field_ned_gauss"):
+            value = getattr(self, key)
+            if value is not None and math.hypot(*value) == 0.0:
+                raise ValueError(f"{self.section}.{key} must not be zero, got {list(value)!r}")
+
+    @property
+    def field_source(self) -> Literal["config", "wmm"]:
+        """Where the reference field comes from: ``"config"`` (``field_ned_gauss`` given) or ``"wmm"``
+        (not configured: the World Magnetic Model at the first GNSS position, the fallback until then)."""
+        return "wmm" if self.field_ned_gauss is None else "config"
 
 
 @dataclass(frozen=True)
@@ -422,6 +445,58 @@ class ExtrapolationSettings(Settings):
 
 
 @dataclass(frozen=True)
+class GnssSettings(Settings):
+    """GNSS velocity as the world acceleration the gravity update takes out of the specific force
+    (:mod:`fuser.model.velocity`)."""
+
+    section: ClassVar[str] = "fuser.gnss"
+
+    enabled: bool = True
+    """Aid the gravity update with GNSS velocity when fixes arrive (false: the accelerometer alone, as
+    without GNSS; the fixes' positions still give the WMM field)."""
+    velocity_noise_m_s: Annotated[float, Range(gt=0, unit="m/s")] = 0.3
+    """One-sigma velocity noise per axis of a fix whose message carries no speed accuracy (GLOBAL_POSITION_INT,
+    HIL_GPS); otherwise the receiver's own figure is used."""
+    latency_ms: Annotated[float, Range(ge=0, le=1000, unit="ms")] = 150.0
+    """How much older a receiver's velocity is than its arrival (GPS_RAW_INT, GPS_INPUT, HIL_GPS, DroneCAN
+    Fix2): measurement to the fix's time on the loop's timeline. PX4's EKF2_GPS_DELAY defaults to 110 ms,
+    ArduPilot's GPS lag to 120-220 ms by receiver."""
+    filtered_latency_ms: Annotated[float, Range(ge=0, le=1000, unit="ms")] = 0.0
+    """The same for an autopilot's navigation solution (GLOBAL_POSITION_INT): its EKF's output is
+    predicted to the time it is sent."""
+    max_age_s: Annotated[float, Range(gt=0, le=10, unit="s")] = 1.0
+    """Two fixes further apart than this are not differenced (the acceleration between them is too smeared),
+    and the aiding stops once the latest fix is this old (the gravity update falls back to the
+    accelerometer alone)."""
+    gate_sigma: Annotated[float, Range(gt=0)] = 5.0
+    """A fix whose acceleration differs from the accelerometer's (rotated by the estimate) by more than this
+    many sigma is a jump: kept out of the low-pass."""
+    accel_error_m_s2: Annotated[float, Range(ge=0, unit="m/s^2")] = 0.5
+    """The accelerometer's error in that comparison (bias, scale, vibration left over a GNSS interval), one sigma."""
+    moving_speed_m_s: Annotated[float, Range(gt=0, unit="m/s")] = 1.0
+    """A vehicle whose latest fix is faster than this is moving, whatever its IMU says: rest detection is off
+    (a smooth cruise with little vibration otherwise passes for rest, and its slow turn rates for a bias)."""
+
+
+@dataclass(frozen=True)
+class LatencySettings(Settings):
+    """How long a tick waits for samples in flight (:mod:`fuser.loop`): ``fuser.latency_ms`` at least, more
+    when the link's latency varies."""
+
+    section: ClassVar[str] = "fuser.latency"
+
+    adaptive: bool = True
+    """Wait for a high quantile of each stream's measured lateness (false: always ``fuser.latency_ms``)."""
+    quantile: Annotated[float, Range(gt=0, le=1)] = 0.995
+    """The quantile of each stream's lateness (receive time minus placed time) that the wait covers."""
+    window_s: Annotated[float, Range(gt=0, unit="s")] = 30.0
+    """Lateness is measured over each stream's samples of the last ``window_s`` (receive time)."""
+    max_ms: Annotated[float, Range(ge=0, unit="ms")] = 250.0
+    """The cap on the wait (and the wait until a stream has shown its lateness): a sample later than this
+    is dropped as late rather than holding every estimate back. ``fuser.latency_ms`` wins if it is larger."""
+
+
+@dataclass(frozen=True)
 class ZenohSettings(Settings):
     """Where the estimates are published (``bingham_fuser/<vehicle>/...``)."""
 
@@ -451,7 +526,8 @@ class FuserConfig(Settings):
     consumer at an IMU's 286 Hz sees to within 2 % of the estimates' own on BROAD (100 Hz: 7 %), at twice the
     computation per second of flight."""
     latency_ms: Annotated[float, Range(ge=0, unit="ms")] = 5.0
-    """How long a tick waits after its due time for samples still in flight."""
+    """How long a tick waits at least after its due time for samples still in flight (``[fuser.latency]``
+    waits longer on links whose latency varies)."""
     record: str | None = None
     """MCAP file to record inputs and estimates to (None: do not record)."""
     gyro: GyroSettings = GyroSettings()
@@ -464,6 +540,8 @@ class FuserConfig(Settings):
     updates: UpdateSettings = UpdateSettings()
     model_error: ModelErrorSettings = ModelErrorSettings()
     extrapolation: ExtrapolationSettings = ExtrapolationSettings()
+    gnss: GnssSettings = GnssSettings()
+    latency: LatencySettings = LatencySettings()
     zenoh: ZenohSettings = ZenohSettings()
     link: LinkSettings = LinkSettings()
     """MAVLink vehicle selection, signing and dialect (``[fuser.link]``; see drivers/link.py)."""

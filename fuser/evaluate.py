@@ -5,6 +5,11 @@ the angle between their down directions (roll and pitch); heading error the
 difference of their yaw about world down. The reference is interpolated
 (slerp) at the estimate times; estimates outside the reference's time span
 are left out.
+
+Calibration: :func:`credible_level` says in which credible region of each
+published Bingham the reference lies (the truth inside the region of mass
+``a`` iff the level is at most ``a``), and :func:`tilt_credible_level` the
+same for the tilt alone (roll and pitch, whatever the heading).
 """
 
 from __future__ import annotations
@@ -14,10 +19,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation, Slerp
+from scipy.stats import chi2
 
 from core import quaternion as quat
 
-__all__ = ["AttitudeErrors", "attitude_errors"]
+__all__ = ["AttitudeErrors", "attitude_errors", "credible_level", "tilt_credible_level"]
 
 
 @dataclass(frozen=True)
@@ -95,3 +101,48 @@ def attitude_errors(
         q_est,
         q_r,
     )
+
+
+def credible_level(M: NDArray, Z: NDArray, q_true: NDArray) -> NDArray[np.float64]:
+    """Per estimate, the smallest credible region of its Bingham ``(M, Z)`` (stacks: n x 4 x 4, n x 4) that holds
+    ``q_true`` (n x 4, w x y z): the truth lies inside the region of mass ``a`` iff the level is <= ``a``.
+
+    A Bingham's credible region of mass ``a`` is the superlevel set ``{x: x^T C x >= t_a}``, so the level is
+    ``P(X^T C X > q^T C q)``; for a concentrated Bingham ``-2 X^T C X`` is chi-square with 3 degrees of
+    freedom, so the level is ``chi2.cdf(-2 q^T C q, 3)`` (``benchmarks/broad.py`` checks this against Monte
+    Carlo draws from the Bingham).
+    """
+    y = np.einsum("nij,ni->nj", np.asarray(M, dtype=float), np.asarray(q_true, dtype=float))  # the truth along the principal directions
+    return chi2.cdf(-2.0 * np.sum(np.asarray(Z, dtype=float) * y * y, axis=1), 3)
+
+
+_DOWN_PURE = np.array([0.0, 0.0, 0.0, 1.0])
+
+
+def tilt_credible_level(M: NDArray, Z: NDArray, q_true: NDArray) -> NDArray[np.float64]:
+    """Per estimate, the smallest credible region of its *tilt* (the body-frame down direction) that holds the
+    true tilt: chi-square with 2 degrees of freedom of the tilt error against the tilt covariance.
+
+    For a concentrated Bingham the body-frame rotation error ``e`` (``x = mode (x) (1, e/2)``) has covariance
+    ``sum_i (1 / (2|z_i|)) 4 u_i u_i^T``, ``u_i = vec(mode^* m_i)`` (``E[(m_i . x)^2] = 1/(2|z_i|)``). The tilt
+    error is the part of the true error ``e`` across the estimated down ``d`` (a rotation about ``d`` leaves the
+    tilt), and its covariance the same projection of that covariance; an unknown heading (``z_i = 0``) costs
+    nothing here, its axis being along ``d``.
+    """
+    M = np.asarray(M, dtype=float)
+    Z = np.asarray(Z, dtype=float)
+    q_true = np.asarray(q_true, dtype=float)
+    mode = M[:, :, 3]
+    # the true error in the estimate's body frame: mode^* (x) q_true = (cos, e/2 ...)
+    delta = quat.multiply(quat.conjugate(mode), q_true * np.sign(np.sum(mode * q_true, axis=1))[:, None])
+    e = 2.0 * delta[:, 1:]
+    d = quat.rotate(quat.conjugate(mode), np.array([0.0, 0.0, 1.0]))  # world down in the body
+    u = quat.multiply(quat.conjugate(mode)[:, None, :], np.swapaxes(M[:, :, :3], 1, 2))[..., 1:]  # n x 3 axes x 3
+    variance = 2.0 / np.maximum(np.abs(Z[:, :3]), 1e-12)  # angle variance along each axis
+    project = np.eye(3)[None] - d[:, :, None] * d[:, None, :]  # across down
+    pu = np.einsum("nij,nkj->nki", project, u)
+    cov = np.einsum("nk,nki,nkj->nij", variance, pu, pu)
+    cov += 1e-12 * np.eye(3)[None] + np.einsum("ni,nj->nij", d, d)  # regular along down: the projected error has none there
+    pe = np.einsum("nij,nj->ni", project, e)
+    m2 = np.einsum("ni,ni->n", pe, np.linalg.solve(cov, pe[..., None])[..., 0])
+    return chi2.cdf(m2, 2)

@@ -63,9 +63,9 @@ ArduPilot DataFlash (``.bin``)
     See :mod:`fuser.dataflash`: already body FRD, world NED; IMU and MAG of
     every instance, GPS and the autopilot's ATT attitude, the log's own time.
 
-GNSS samples travel as MAVLink like the rest (:data:`GNSS_MESSAGE`): the
-receiver's GPS_RAW_INT carries ground speed and course, not the vertical
-velocity.
+GNSS samples travel as MAVLink like the rest (:data:`GNSS_MESSAGE`): a
+GPS_INPUT with the receiver's NED velocity, vertical included, and its speed
+accuracy.
 
 Reference field
     The fuser wants ``mag_field_ned_gauss`` (north, east, down). For BROAD it
@@ -142,8 +142,9 @@ Q_NE = np.array([0.0, S2, S2, 0.0])
 """World ENU -> world NED: 180 degrees about (1, 1, 0)/sqrt(2)."""
 UT_TO_GAUSS = 0.01
 LINK_LATENCY_NS = 1_000_000
-GNSS_MESSAGE = "GPS_RAW_INT"
-"""How imported GNSS fixes travel; "GPS_INPUT" (NED velocity and its accuracy) once drivers/ encodes it."""
+GNSS_MESSAGE = "GPS_INPUT"
+"""How imported GNSS fixes travel: GPS_INPUT carries the receiver's NED velocity (vertical included, which
+GPS_RAW_INT's ground speed and course drop) and its speed accuracy, the whole of what the logs hold."""
 MAVLINK_SOURCE = SourceId("mavlink", 1, 1, 0)
 
 

@@ -41,6 +41,11 @@ SPIN_NS = 300_000
 a blocking wait wakes 0.1-0.3 ms late (timer slack, scheduling), polling wakes on time (2% of a core at 100 Hz)."""
 
 
+MAX_QUEUED_SAMPLES = 20_000
+"""Samples waiting between the source threads and the loop (50 s of a 400 Hz IMU): beyond it, a sample is
+dropped and counted (``queue_full``) rather than memory growing while the loop cannot keep up."""
+
+
 class _SourceThread(threading.Thread):
     """Polls one source until stopped; a failing poll is counted, logged and retried; silences are counted as stalls."""
 
@@ -53,12 +58,13 @@ class _SourceThread(threading.Thread):
         self.stop = stop
         self.errors = 0
         self.stalls = 0
+        self.queue_full = 0
         self.last_sample_ns: int | None = None
         self._stalled = False
 
     def health(self, now_ns: int) -> dict:
         silent = None if self.last_sample_ns is None else round((now_ns - self.last_sample_ns) / 1e9, 3)
-        return {"poll_errors": self.errors, "stalls": self.stalls, "silent_s": silent}
+        return {"poll_errors": self.errors, "stalls": self.stalls, "queue_full": self.queue_full, "silent_s": silent}
 
     def run(self) -> None:
         while not self.stop.is_set():
@@ -78,7 +84,10 @@ class _SourceThread(threading.Thread):
                 self.stalls += 1
                 log.warning("source %s silent for %.1f s (stall %d)", self.label, (now - self.last_sample_ns) / 1e9, self.stalls)
             for s in samples:
-                self.out.put((s, now))
+                try:
+                    self.out.put_nowait((s, now))
+                except queue.Full:
+                    self.queue_full += 1
 
 
 def _warm_up(pipeline: Pipeline) -> None:
@@ -111,7 +120,7 @@ class LiveRunner:
         self.stop_event = threading.Event()
         self.counters: Counter[str] = Counter()
         self.latencies_ns: deque[int] = deque(maxlen=10_000)
-        self._queue: queue.Queue[tuple[Sample, int]] = queue.Queue()
+        self._queue: queue.Queue[tuple[Sample, int]] = queue.Queue(MAX_QUEUED_SAMPLES)
         self._threads = [_SourceThread(n, s, self._queue, self.stop_event, self.clock) for n, s in sources.items()]
         pipeline.outputs.append(self._measure)
 

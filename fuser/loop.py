@@ -5,12 +5,33 @@ arrival order: live and replay share every line of it, and replaying a log
 gives the same estimates byte for byte.
 
 Timeline. Each sender stamps samples with its own clock. For every stream
-(source and sample type) the loop keeps ``offset = min(receive_ns - t_ns)``,
-the smallest latency seen, and places a sample at ``t_ns + offset``: the
-sender's precise spacing, anchored to the receiver's clock. Tick ``T`` (on a
-grid of ``1/rate``) fuses the samples placed in ``(T - period, T]`` and runs
-once the clock reaches ``T + latency``; a sample placed at or before a tick
-that already ran is late, counted and dropped.
+(source and sample type; an autopilot's GNSS solution and its receiver's fix
+are two) the loop keeps ``offset = min(receive_ns - t_ns)``, the smallest
+latency seen, and places a sample at ``t_ns + offset``: the sender's precise
+spacing, anchored to the receiver's clock. Tick ``T`` (on a grid of
+``1/rate``) fuses the samples placed in ``(T - period, T]`` and runs once the
+clock reaches ``T + wait``; a sample placed at or before a tick that already
+ran is late, counted and dropped.
+
+The wait. A sample's *lateness* is ``receive_ns - placed``: zero for the
+fastest sample of its stream, the link's jitter for the others (20-150 ms
+over a telemetry radio, well under a millisecond on a wire). With
+``[fuser.latency] adaptive`` (the default) the wait is the largest, over the
+streams heard within ``window_s``, of each stream's ``quantile`` of lateness
+over that window, never less than ``fuser.latency_ms`` nor more than
+``max_ms`` (:class:`Timeline`): a wired link keeps its few milliseconds, a radio
+gets what its jitter needs. It is measured again once a second of the
+receive timeline (between ticks, so that no estimate waits for it), raised at
+once by a sample later than it (a link that slows down), and starts at the
+cap until a stream has shown its lateness (``_MIN_SAMPLES`` samples), so the
+first seconds of a slow link are not lost either. It comes down by at most
+half a tick period per tick: the ticks it held back run at up to twice the
+rate, not in one burst. It is a function of the
+inputs only, so a replay reproduces it. Because the offset only ever
+decreases, samples held up at start-up (a stall under load) are placed late
+and counted as late against the first offset, never the later ones: the
+next faster sample lowers the offset, and the stall's lateness leaves the
+window after ``window_s``.
 
 The loop is the one owner of this timeline: it hands the model each tick's
 samples with their placed times (:class:`fuser.model.TickInput`), and picks
@@ -19,10 +40,10 @@ estimates' ``sensor_t_ns`` is on.
 
 One vehicle. On each transport the first IMU's vehicle (:func:`vehicle_of`)
 is the one fused: its IMUs (ArduPilot's RAW_IMU, SCALED_IMU2, SCALED_IMU3 are
-instances 0, 1, 2, each on its own clock) are fused together, and IMU or
-attitude samples of any other vehicle on that transport (another MAVLink
-system id) are counted (``other_vehicle``) and dropped, never averaged with
-it. A CAN bus and a MAVLink link given together are the one aircraft's (its
+instances 0, 1, 2, each on its own clock) are fused together, and IMU,
+attitude or GNSS samples of any other vehicle on that transport (another
+MAVLink system id) are counted (``other_vehicle``) and dropped, never
+averaged with it. A CAN bus and a MAVLink link given together are the one aircraft's (its
 DroneCAN sensors and its autopilot): both are fused. The model returns a plain
 :class:`fuser.model.TickResult`; the wire :class:`~fuser.codec.Estimate` is
 built here from it (:func:`estimate_of`).
@@ -31,17 +52,17 @@ built here from it (:func:`estimate_of`).
 from __future__ import annotations
 
 import math
-from bisect import bisect_right
-from collections import Counter
+from bisect import bisect_left, bisect_right, insort
+from collections import Counter, deque
 from typing import Any, Mapping
 
 from drivers.euler import euler_from_quaternion
-from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
+from drivers.samples import AttitudeSample, GnssSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
-from fuser.config import FuserConfig
+from fuser.config import FuserConfig, LatencySettings
 from fuser.model import FusionModel, TickInput, TickResult
 
-__all__ = ["FusionLoop", "estimate_of", "vehicle_of"]
+__all__ = ["FusionLoop", "Timeline", "estimate_of", "stream_of", "vehicle_of"]
 
 
 def vehicle_of(source: SourceId) -> tuple:
@@ -50,8 +71,105 @@ def vehicle_of(source: SourceId) -> tuple:
     return (source.transport,) if source.transport == "dronecan" else (source.transport, source.system)
 
 
+def stream_of(sample: Sample) -> tuple:
+    """The stream a sample belongs to, each with its own clock offset: source and sample type, and for GNSS
+    whether it is an autopilot's solution (GLOBAL_POSITION_INT, boot clock) or a receiver's fix (GPS_RAW_INT,
+    often Unix time) from the same source."""
+    if isinstance(sample, GnssSample):
+        return (sample.source, GnssSample, sample.filtered)
+    return (sample.source, type(sample))
+
+
 _Pending = tuple[int, int, Sample]
 """A buffered sample: (placed_ns, arrival number, sample); the arrival number keeps the order total."""
+
+_MIN_SAMPLES = 30
+"""A stream's lateness is known once this many of its samples lie in the window; until then it asks for the cap."""
+_MAX_KEPT = 4096
+"""Most samples kept per stream for the quantile (10 s of a 400 Hz IMU)."""
+_MEASURE_EVERY_NS = 1_000_000_000
+"""The wait is measured again once per second of the receive timeline."""
+
+
+class _Lateness:
+    """One stream's recent ``receive_ns - t_ns``, in arrival order (to expire) and sorted (for the quantile)."""
+
+    __slots__ = ("arrivals", "sorted")
+
+    def __init__(self) -> None:
+        self.arrivals: deque[tuple[int, int]] = deque()
+        self.sorted: list[int] = []
+
+    def add(self, receive_ns: int, latency_ns: int, window_ns: int) -> None:
+        self.arrivals.append((receive_ns, latency_ns))
+        insort(self.sorted, latency_ns)
+        self.expire(receive_ns - window_ns)
+        if len(self.arrivals) > _MAX_KEPT:
+            self._drop_oldest()
+
+    def expire(self, before_ns: int) -> None:
+        """Forget the samples received before ``before_ns``."""
+        while self.arrivals and self.arrivals[0][0] < before_ns:
+            self._drop_oldest()
+
+    def _drop_oldest(self) -> None:
+        _, latency = self.arrivals.popleft()
+        del self.sorted[bisect_left(self.sorted, latency)]
+
+    def quantile(self, q: float) -> int:
+        """The ``q`` quantile (the higher of two neighbours): the sample ``ceil(q (n - 1))`` in sorted order."""
+        return self.sorted[math.ceil(q * (len(self.sorted) - 1))]
+
+
+class Timeline:
+    """Each stream's clock offset (where its samples are placed) and the wait its lateness asks for.
+
+    :meth:`place` puts a sample on the loop's timeline; :attr:`wait_ns` is how long a tick waits for samples
+    in flight (module docstring), between ``floor_ns`` and ``cap_ns``. Deterministic in what it is given; a
+    sample costs a sorted insertion (microseconds), the measurement once a second a look-up per stream.
+    """
+
+    def __init__(self, params: LatencySettings, floor_ms: float) -> None:
+        self.params = params
+        self.floor_ns = round(floor_ms * 1e6)
+        self.cap_ns = max(self.floor_ns, round(params.max_ms * 1e6))
+        self.window_ns = round(params.window_s * 1e9)
+        self.wait_ns = self.cap_ns if params.adaptive else self.floor_ns
+        """The wait the lateness asks for."""
+        self.offsets: dict[tuple, int] = {}
+        """Per stream, in order of first arrival: the smallest receive - send time."""
+        self._latency: dict[tuple, _Lateness] = {}
+        """Per stream: its samples within the window."""
+        self._next_measure_ns: int | None = None
+
+    def place(self, stream: tuple, t_ns: int, receive_ns: int) -> int:
+        """The time on the loop's timeline of a sample of ``stream`` stamped ``t_ns``, received at ``receive_ns``."""
+        latency = receive_ns - t_ns
+        offset = self.offsets[stream] = min(latency, self.offsets.get(stream, latency))
+        if self.params.adaptive:
+            kept = self._latency.get(stream)
+            if kept is None:
+                kept = self._latency[stream] = _Lateness()
+            kept.add(receive_ns, latency, self.window_ns)
+            if self._next_measure_ns is None or receive_ns >= self._next_measure_ns:
+                self._next_measure_ns = receive_ns + _MEASURE_EVERY_NS
+                self.wait_ns = self._measured(receive_ns)
+            if latency - offset > self.wait_ns:  # a link slowing down: wait longer from now on
+                self.wait_ns = min(self.cap_ns, latency - offset)
+        return t_ns + offset
+
+    def _measured(self, now_ns: int) -> int:
+        """The largest of every recent stream's lateness quantile, within the floor and the cap."""
+        wait = self.floor_ns
+        for stream, kept in list(self._latency.items()):
+            kept.expire(now_ns - self.window_ns)
+            if not kept.arrivals:
+                del self._latency[stream]
+                continue
+            if len(kept.arrivals) < _MIN_SAMPLES:
+                return self.cap_ns
+            wait = max(wait, kept.quantile(self.params.quantile) - self.offsets[stream])
+        return min(wait, self.cap_ns)
 
 
 class FusionLoop:
@@ -61,11 +179,13 @@ class FusionLoop:
         self.config = config
         self.model = FusionModel(config)
         self.period_ns = round(1e9 / config.rate_hz)
-        self.latency_ns = round(config.latency_ms * 1e6)
+        self.timeline = Timeline(config.latency, config.latency_ms)
+        """Each stream's clock offset and the wait for samples in flight."""
+        self._wait_ns = self.timeline.wait_ns
+        """The wait the last tick ran under: up at once to the timeline's, down by at most half a period per tick
+        (the ticks it held back then run at up to twice the rate, each on time for the wait it ran under)."""
         self.max_catch_up_ticks = max_catch_up_ticks
         self.counters: Counter[str] = Counter()
-        self._offsets: dict[tuple, int] = {}
-        """Per stream (source, sample type), in order of first arrival: the smallest receive - send time."""
         self._pending: list[_Pending] = []
         self._seq = 0
         self._next_tick: int | None = None
@@ -77,13 +197,22 @@ class FusionLoop:
         self._latest_diagnostics: dict[str, dict[str, Any]] = {}
 
     @property
+    def latency_ns(self) -> int:
+        """How long the last tick waited after its time for samples in flight (:class:`Timeline`)."""
+        return self._wait_ns
+
+    @property
     def next_due_ns(self) -> int | None:
         """Clock time at which the next tick will run, or None before the first sample."""
-        return None if self._next_tick is None else self._next_tick + self.latency_ns
+        return None if self._next_tick is None else self._next_tick + self._next_wait_ns()
+
+    def _next_wait_ns(self) -> int:
+        """The wait of the next tick: the timeline's, or half a period less than the last tick's if that is more."""
+        return max(self.timeline.wait_ns, self._wait_ns - self.period_ns // 2)
 
     def push(self, sample: Sample, receive_ns: int) -> None:
         """Hand a sample to the loop; it is fused by the tick that covers its time."""
-        if isinstance(sample, (ImuSample, AttitudeSample)):
+        if isinstance(sample, (ImuSample, AttitudeSample, GnssSample)):
             vehicle = vehicle_of(sample.source)
             if isinstance(sample, ImuSample):
                 chosen = self._vehicles.setdefault(sample.source.transport, vehicle)
@@ -94,10 +223,7 @@ class FusionLoop:
             if vehicle != chosen:
                 self.counters["other_vehicle"] += 1
                 return
-        key = (sample.source, type(sample))
-        offset = min(receive_ns - sample.t_ns, self._offsets.get(key, receive_ns - sample.t_ns))
-        self._offsets[key] = offset
-        placed = sample.t_ns + offset
+        placed = self.timeline.place(stream_of(sample), sample.t_ns, receive_ns)
         if self._last_tick is not None and placed <= self._last_tick:
             self.counters["late"] += 1
             return
@@ -110,10 +236,11 @@ class FusionLoop:
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
         out: list[Estimate] = []
-        while self._next_tick is not None and self._next_tick + self.latency_ns <= now_ns:
-            behind = (now_ns - self.latency_ns - self._next_tick) // self.period_ns
+        while self._next_tick is not None and self._next_tick + (wait := self._next_wait_ns()) <= now_ns:
+            self._wait_ns = wait
+            behind = (now_ns - wait - self._next_tick) // self.period_ns
             if self.max_catch_up_ticks is not None and behind > self.max_catch_up_ticks:
-                skip_to = now_ns - self.latency_ns - self.max_catch_up_ticks * self.period_ns
+                skip_to = now_ns - wait - self.max_catch_up_ticks * self.period_ns
                 skipped = (skip_to - self._next_tick) // self.period_ns
                 self.counters["ticks_skipped"] += skipped
                 self._next_tick += skipped * self.period_ns
@@ -125,7 +252,7 @@ class FusionLoop:
         """Run the ticks that cover every sample still pending (end of a log)."""
         if not self._pending:
             return []
-        return self.advance(max(p[0] for p in self._pending) + self.period_ns + self.latency_ns - 1)
+        return self.advance(max(p[0] for p in self._pending) + self.period_ns + max(self._wait_ns, self.timeline.wait_ns) - 1)
 
     def diagnostics(self) -> dict[str, dict[str, Any]]:
         """The latest diagnostic of each measurement update (with its tick time ``t_ns``), for the status."""
@@ -139,7 +266,7 @@ class FusionLoop:
         self._last_tick = tick_ns
         self.counters["ticks"] += 1
         result = self.model.step(TickInput(tick_ns, dt, [p[2] for p in due], [p[0] for p in due]))
-        offset = None if self.reference_imu is None else self._offsets[(self.reference_imu, ImuSample)]
+        offset = None if self.reference_imu is None else self.timeline.offsets[(self.reference_imu, ImuSample)]
         stamp = tick_ns + result.ahead_ns  # the time the published state is for (fuser.model.extrapolation)
         estimate = estimate_of(stamp, result, {**result.counters, **self.counters}, None if offset is None else stamp - offset)
         for d in estimate.diagnostics:

@@ -11,7 +11,6 @@ process so that the fusion loop never waits for, nor dies with, the disk.
 
 from __future__ import annotations
 
-import json
 import logging
 import multiprocessing as mp
 import os
@@ -29,7 +28,7 @@ from mcap.writer import CompressionType, Writer
 
 from drivers.samples import Quat, Sample
 
-from .codec import Estimate, decode_sample, dumps, encode_sample, sample_channel
+from .codec import Estimate, decode_sample, dumps, loads, sample_channel, sample_json
 from .frames import BODY_FRAME, TRUTH_OFFSET_NED_M, body_transforms
 from .mcap_scan import NotAnMcapError, RawMessage, Skipped, scan_mcap
 
@@ -317,9 +316,12 @@ class McapRecorder:
     def write_sample(self, sample: Sample, receive_ns: int) -> None:
         """An input sample; log time = receive time, publish time = the sender's time."""
         topic = sample_channel(sample)
-        data = self._encode(topic, encode_sample(sample, receive_ns))
-        if data is not None:
-            self.write_message(topic, receive_ns, sample.t_ns, data)
+        try:
+            data = sample_json(sample, receive_ns)
+        except (TypeError, ValueError) as e:  # NaN or infinity (refused), or a value JSON has no form for
+            self._reject(topic, "not_json", str(e))
+            return
+        self.write_message(topic, receive_ns, sample.t_ns, data)
 
     def write_estimate(self, est: Estimate) -> None:
         """An estimate on ``/estimate`` (full), ``/pose`` and ``/tf`` (Foxglove), and its tick's update diagnostics
@@ -522,7 +524,7 @@ class LogContents:
     @cached_property
     def messages(self) -> list[tuple[str, int, dict[str, Any]]]:
         """Every message as ``(topic, log_time_ns, dict)``, in log-time order."""
-        return [(m.topic, m.log_time, json.loads(m.data)) for m in self.raw]
+        return [(m.topic, m.log_time, loads(m.data)) for m in self.raw]
 
     @property
     def records(self) -> int:
@@ -535,18 +537,18 @@ class LogContents:
 
     def topic(self, name: str) -> list[tuple[int, dict[str, Any]]]:
         """``(log_time_ns, dict)`` of one topic."""
-        return [(m.log_time, json.loads(m.data)) for m in self.of((name,))]
+        return [(m.log_time, loads(m.data)) for m in self.of((name,))]
 
     def inputs(self) -> list[tuple[Sample, int]]:
         """Input samples and their receive times, in log-time order."""
-        return [decode_sample(m.topic, json.loads(m.data)) for m in self.of(INPUT_TOPICS)]
+        return [decode_sample(m.topic, loads(m.data)) for m in self.of(INPUT_TOPICS)]
 
     def estimates(self) -> list[Estimate]:
         return [Estimate.from_dict(d) for _, d in self.topic("/estimate")]
 
     def truth(self) -> list[tuple[int, Quat]]:
         """``(t_ns, q_wxyz)`` from ``/truth/pose``, ``t_ns`` on the vehicle's clock (the publish time)."""
-        return [(m.publish_time, _quat_wxyz(json.loads(m.data))) for m in self.of(("/truth/pose",))]
+        return [(m.publish_time, _quat_wxyz(loads(m.data))) for m in self.of(("/truth/pose",))]
 
     def status(self) -> list[tuple[int, dict[str, Any]]]:
         return self.topic("/status")

@@ -17,7 +17,6 @@ is left behind (it is written under a temporary name and renamed at the end).
 from __future__ import annotations
 
 import errno
-import json
 import os
 import sys
 import time
@@ -27,7 +26,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator, TextIO
 
 from drivers.samples import Sample
-from fuser.codec import decode_sample
+from fuser.codec import decode_sample, loads
 from fuser.config import FuserConfig
 from fuser.errors import FuserError, NotALogError
 from fuser.inputs import InputReport, TlogInputs
@@ -71,7 +70,7 @@ class ReplaySummary:
 def _copied_inputs(messages: Iterable[RawMessage], pipeline: Pipeline, recorder: McapRecorder) -> Iterator[tuple[Sample, int]]:
     """An MCAP log's inputs, each written unchanged to ``recorder`` where an input sink of the pipeline would write it."""
     for m in messages:
-        sample, receive_ns = decode_sample(m.topic, json.loads(m.data))
+        sample, receive_ns = decode_sample(m.topic, loads(m.data))
         pipeline.advance(receive_ns)  # as in Pipeline.feed: the ticks due before the sample are recorded before it
         recorder.write_message(m.topic, receive_ns, sample.t_ns, m.data)
         yield sample, receive_ns

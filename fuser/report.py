@@ -33,6 +33,7 @@ from numpy.typing import NDArray
 from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample
 from fuser.codec import Estimate
+from fuser.errors import UsageError
 from fuser.evaluate import AttitudeErrors, attitude_errors
 from fuser.frames import orientation_covariance_ned
 from fuser.record import LogContents, read_log
@@ -91,6 +92,14 @@ def reference_of(contents: LogContents) -> Reference:
     return Reference("truth", "/truth/pose of unknown origin", True)
 
 
+def _unscored(path: str | Path, contents: LogContents) -> str:
+    """Why a log cannot be scored, in the user's terms."""
+    if not any(e.sensor_t_ns is not None for e in contents.estimates()):
+        return (f"{path} holds no estimates (an imported or input-only log): fuse it first, "
+                f"'bingham-fuser replay {path} -o fused.mcap', then report fused.mcap")
+    return f"{path} has no reference attitude to score against (no truth, and fewer than two autopilot attitude samples)"
+
+
 def errors_of_log(path: str | Path, contents: LogContents | None = None) -> tuple[str, AttitudeErrors] | None:
     """(``truth`` or ``autopilot attitude``: where the reference came from, errors) for a log's
     estimates, or None if it has no reference or no estimates."""
@@ -134,7 +143,7 @@ def score_log(path: str | Path, since_s: float = CONVERGENCE_S) -> list[str]:
     contents = read_log(path)
     result = errors_of_log(path, contents)
     if result is None:
-        return [f"{path}: no reference attitude to score against"]
+        return [f"{path}: {_unscored(path, contents)}"]
     err = result[1]
     ref = reference_of(contents)
     if err.t_ns.size == 0:
@@ -191,9 +200,11 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
     contents = read_log(path)
     result = errors_of_log(path, contents)
     if result is None:
-        return [f"{path}: no reference attitude to score against"]
+        raise UsageError(f"report: {_unscored(path, contents)}")
     err = result[1]
     ref = reference_of(contents)
+    if err.t_ns.size == 0:
+        raise UsageError(f"report: no estimate of {path} lies within the time span of its {ref.name}")
     since_s = _window(err, since_s)
     rms = err.rms(since_s)
     out_dir.mkdir(parents=True, exist_ok=True)

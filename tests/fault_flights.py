@@ -9,7 +9,10 @@ not of the fault), and the recovery is scored until 12 s. The truth is the simul
 * ``rogue_imu``: a second IMU of the vehicle (instance 1, agreeing with the first before and after, on
   its own clock) sends random data for 4 s;
 * ``attitude_jump``: over a telemetry link (three IMUs at about 3 Hz, the autopilot's ATTITUDE at 3.5 Hz,
-  ``test_fuser_slow_link.telemetry_stream``) the autopilot's attitude jumps by 30 deg of roll for 4 s.
+  ``test_fuser_slow_link.telemetry_stream``) the autopilot's attitude jumps by 30 deg of roll for 4 s;
+* ``saturation_in_turn``: the same saturated gyro at 12 s, in the programme's sustained banked turns (20 deg of
+  bank, 0.5 rad/s), scored until 25 s: the recovery then needs the GNSS velocity (it is fused; without it the
+  accelerometer's tilt in a turn is the bank's).
 
 Used by ``tests/test_fuser_admitted_faults.py`` and ``benchmarks/faults.py``.
 """
@@ -45,15 +48,16 @@ class FaultRun:
     start_s: float
     end_s: float
     counters: dict
+    scored_until_s: float = SCORED_UNTIL_S
 
     def window(self, a: float, b: float) -> np.ndarray:
         return (self.t_s >= a) & (self.t_s < b)
 
     @property
     def recovery_s(self) -> float:
-        """Seconds from the fault's end until the error stays under ``RECOVERED_DEG`` up to ``SCORED_UNTIL_S``
+        """Seconds from the fault's end until the error stays under ``RECOVERED_DEG`` up to ``scored_until_s``
         (inf if it never does)."""
-        after = self.window(self.end_s, SCORED_UNTIL_S)
+        after = self.window(self.end_s, self.scored_until_s)
         bad = np.nonzero(after & (self.error_deg >= RECOVERED_DEG))[0]
         if len(bad) == 0:
             return 0.0
@@ -64,6 +68,7 @@ class FaultRun:
     def summary(self) -> dict:
         during = self.window(self.start_s, self.end_s)
         before = self.window(self.start_s - 2.0, self.start_s)
+        after = self.window(self.end_s, self.scored_until_s)
         return {
             "error_before_deg": float(np.sqrt(np.mean(self.error_deg[before] ** 2))),
             "uncertainty_before_deg": float(np.mean(self.uncertainty_deg[before])),
@@ -72,33 +77,46 @@ class FaultRun:
             "uncertainty_during_deg": float(np.mean(self.uncertainty_deg[during])),
             "uncertainty_during_min_deg": float(self.uncertainty_deg[during].min()),
             "recovery_s": self.recovery_s,
+            "overconfident_after_s": float(np.sum(after & (self.error_deg > 2.0 * self.uncertainty_deg)) * np.median(np.diff(self.t_s))),
         }
 
 
-def _fuse(events, config: FuserConfig, flight, name: str, start_s: float, end_s: float) -> FaultRun:
+def _fuse(events, config: FuserConfig, flight, name: str, start_s: float, end_s: float, scored_until_s: float = SCORED_UNTIL_S) -> FaultRun:
     loop = FusionLoop(config)
     estimates = []
     for receive_ns, sample in events:
         estimates += loop.advance(receive_ns)
         loop.push(sample, receive_ns)
     estimates += loop.flush()
-    last = min(int(flight.t_ns[-1]), int(flight.t_ns[0] + SCORED_UNTIL_S * 1e9))
+    last = min(int(flight.t_ns[-1]), int(flight.t_ns[0] + scored_until_s * 1e9))
     est = [e for e in estimates if e.sensor_t_ns is not None and flight.t_ns[0] <= e.sensor_t_ns <= last]
     t = np.array([e.sensor_t_ns for e in est])
     truth = flight.q_true[np.clip(np.searchsorted(flight.t_ns, t), 0, len(flight.t_ns) - 1)]
     error = np.degrees(quat.angular_distance(np.array([e.q_wxyz for e in est]), truth))
     counters = dict(loop.counters) | dict(loop.model.counters)
-    return FaultRun(name, (t - flight.t_ns[0]) * 1e-9, error, np.array([e.uncertainty_deg for e in est]), start_s, end_s, counters)
+    return FaultRun(name, (t - flight.t_ns[0]) * 1e-9, error, np.array([e.uncertainty_deg for e in est]), start_s, end_s, counters,
+                    scored_until_s)
 
 
-def saturation(seed: int = 0, start_s: float = START_S, seconds: float = 2.0) -> FaultRun:
-    flight = simulate(SimConfig(seed=seed, duration_s=SCORED_UNTIL_S, imu_rate_hz=200.0))
+def saturation(seed: int = 0, start_s: float = START_S, seconds: float = 2.0, scored_until_s: float = SCORED_UNTIL_S,
+               config: FuserConfig = FuserConfig(), name: str = "saturated gyro") -> FaultRun:
+    flight = simulate(SimConfig(seed=seed, duration_s=scored_until_s, imu_rate_hz=200.0))
     rel = (flight.t_ns - flight.t_ns[0]) * 1e-9
     gyro = flight.gyro_rad_s.copy()
     gyro[(rel >= start_s) & (rel < start_s + seconds), 0] = 34.9
     flight_faulty = dataclasses.replace(flight, gyro_rad_s=gyro)
     events = [(t + LINK_NS, s) for t, _, ss in samples(flight_faulty) for s in ss]
-    return _fuse(events, FuserConfig(), flight, "saturated gyro", start_s, start_s + seconds)
+    return _fuse(events, config, flight, name, start_s, start_s + seconds, scored_until_s)
+
+
+TURN_START_S = 12.0
+TURN_SCORED_UNTIL_S = 25.0
+
+
+def saturation_in_turn(seed: int = 0, gnss: bool = True) -> FaultRun:
+    """The saturated gyro for 2 s at 12 s, in the sustained banked turns, with (or without) the GNSS velocity."""
+    return saturation(seed, TURN_START_S, 2.0, TURN_SCORED_UNTIL_S, FuserConfig().replace(gnss={"enabled": gnss}),
+                      "saturated gyro in a banked turn" + ("" if gnss else ", without GNSS"))
 
 
 def rogue_imu(seed: int = 0, start_s: float = START_S, seconds: float = 4.0) -> FaultRun:
@@ -139,8 +157,8 @@ def attitude_jump(seed: int = 4, start_s: float = START_S, seconds: float = 4.0,
                 s = AttitudeSample(s.t_ns, tuple(quat.multiply(s.q_wxyz, jump)), s.source)
                 (s,) = MavlinkDecoder().feed(encoder.encode(s, "ATTITUDE"))  # as the autopilot would send it
             events.append((receive_ns, s))
-    config = FuserConfig(latency_ms=LINK_JITTER_MS).replace(mag={"field_ned_gauss": SimConfig().mag_field_ned_gauss})
+    config = FuserConfig(latency_ms=LINK_JITTER_MS).replace(mag={"field_ned_gauss": flight.mag_field_ned_gauss})
     return _fuse(events, config, flight, "attitude source jumps 30 deg", start_s, start_s + seconds)
 
 
-FAULTS = {"saturation": saturation, "rogue_imu": rogue_imu, "attitude_jump": attitude_jump}
+FAULTS = {"saturation": saturation, "rogue_imu": rogue_imu, "attitude_jump": attitude_jump, "saturation_in_turn": saturation_in_turn}

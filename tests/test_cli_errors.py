@@ -70,6 +70,8 @@ CASES: dict[str, Case] = {
     "replay-damaged-chunk": Case(["replay", "in.mcap", "-o", "out.mcap"], 0,
                                  ("warning: in.mcap is damaged", f"skipped 1 chunk ({DAMAGED_BYTES:,} bytes, {DAMAGED_MESSAGES} messages)"),
                                  {"in.mcap": DAMAGED}, writes=("out.mcap",)),
+    "report-of-an-imported-log": Case(["report", str(ROOT / "logs" / "px4_sample_cut.mcap"), "-o", "rep"], 2,
+                                      ("holds no estimates", "bingham-fuser replay")),
     "report-of-a-text-file": Case(["report", "in.mcap", "-o", "rep"], 2, ("not an MCAP",), {"in.mcap": _text("hello\n")}),
     # connection strings and buses (issue 12, item 6)
     "mavlink-notaport": Case(["run", "--mavlink", "notaport", "--no-zenoh"], 2, ("notaport", "udpin:HOST:PORT")),

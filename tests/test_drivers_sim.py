@@ -30,8 +30,8 @@ def test_level_at_rest_reads_minus_g_and_the_earth_field():
     f = simulate(dataclasses.replace(QUIET, duration_s=0.01))
     assert cq.angular_distance(f.q_true[0], cq.IDENTITY) < 0.25  # wobble and yaw start near level
     assert f.accel_true_m_s2[0] == pytest.approx((0, 0, -GRAVITY_M_S2), abs=0.05)
-    field = cq.rotate(f.q_true[0], f.mag_true_gauss[0])  # back to NED
-    assert field == pytest.approx((0.21, 0.0, 0.43), abs=1e-12)
+    field = cq.rotate(f.q_true[0], f.mag_true_gauss[0])  # back to NED: the WMM's at the start (Zurich, mid-2026)
+    assert field == pytest.approx(field_ned_gauss(47.3977, 8.5456, 488.0, 2026.5), abs=1e-12)
 
 
 def test_gyro_truth_is_the_derivative_of_the_true_attitude(flight):
@@ -155,6 +155,22 @@ def test_dronecan_output_decodes_to_the_measurements():
     assert np.allclose([s.accel_m_s2 for s in imu], f.accel_m_s2[f.imu_valid], rtol=2**-10, atol=1e-3)
     assert len(mags) == np.sum(~np.isnan(f.mag_gauss[f.imu_valid, 0]))
     assert len([s for s in out if isinstance(s, AttitudeSample)]) == len(f.attitude_index)
+    assert set(decoder.stats) <= {"accepted", "ignored"}
+
+
+def test_dronecan_sends_the_receivers_fixes_as_fix2():
+    """Fix2: NED velocity as float32 (the DSDL's), the speed accuracy as three equal velocity variances (float16),
+    WGS84 position in 1e-8 deg and mm, stamped with the fix time (us) on the node's time base."""
+    f = simulate(SimConfig(duration_s=3.0, seed=4))
+    decoder = DroneCanDecoder()
+    gnss = [s for _, _, frames in dronecan_stream(f) for fr in frames for s in decoder.feed(fr) if isinstance(s, GnssSample)]
+    g = f.gnss
+    assert [s.t_ns for s in gnss] == g.t_ns.tolist()
+    np.testing.assert_allclose([s.vel_ned_m_s for s in gnss], g.vel_ned_m_s, rtol=1e-6, atol=1e-6)
+    assert all(s.vertical_velocity and not s.filtered and s.fix_type == 3 for s in gnss)
+    assert [s.speed_accuracy_m_s for s in gnss] == pytest.approx([0.1] * len(gnss), rel=2**-10)
+    np.testing.assert_allclose([s.lat_deg for s in gnss], g.lat_deg, atol=1e-8)
+    np.testing.assert_allclose([s.alt_m for s in gnss], g.alt_m, atol=1e-3)
 
 
 # -- GNSS ------------------------------------------------------------------------------------------
@@ -187,20 +203,29 @@ def test_gnss_rate_latency_and_errors():
     assert 5.0 < travelled.max() < 500.0
 
 
-@pytest.mark.parametrize("message", ["GPS_RAW_INT", "GLOBAL_POSITION_INT"])
+@pytest.mark.parametrize("message", ["GPS_RAW_INT", "GPS_INPUT", "GLOBAL_POSITION_INT"])
 def test_gnss_goes_through_mavlink(message):
     f = simulate(SimConfig(duration_s=20.0, seed=2))
     decoder = MavlinkDecoder()
     out = [s for _, _, data in mavlink_stream(f, gnss_message=message) for s in decoder.feed(data)]
     gnss = [s for s in out if isinstance(s, GnssSample)]
     g = f.gnss
-    assert [s.t_ns for s in gnss] == g.t_ns.tolist()
     vel = np.array([s.vel_ned_m_s for s in gnss])
+    if message == "GLOBAL_POSITION_INT":  # the autopilot's solution: its velocity now, stamped when sent (ms)
+        assert [s.t_ns for s in gnss] == ((f.t_ns[g.index] // 1_000_000) * 1_000_000).tolist()
+        assert all(s.filtered and s.speed_accuracy_m_s is None for s in gnss)
+        np.testing.assert_allclose(vel, g.solution_vel_ned_m_s, atol=0.006)
+        err = g.solution_vel_ned_m_s - f.vel_ned_true_m_s[g.index]
+        assert np.std(err, axis=0) == pytest.approx([0.1] * 3, rel=0.15)
+    else:  # the receiver's fix: measured at its time, sent 0.15 s later
+        assert [s.t_ns for s in gnss] == g.t_ns.tolist()
+        assert not any(s.filtered for s in gnss)
     if message == "GPS_RAW_INT":  # ground speed (cm/s) and course (cdeg) only
         np.testing.assert_allclose(np.hypot(vel[:, 0], vel[:, 1]), np.hypot(g.vel_ned_m_s[:, 0], g.vel_ned_m_s[:, 1]), atol=0.006)
         assert not any(s.vertical_velocity for s in gnss)
-    else:
-        np.testing.assert_allclose(vel, g.vel_ned_m_s, atol=0.006)
+    elif message == "GPS_INPUT":  # NED velocity in m/s (float32) and the speed accuracy
+        np.testing.assert_allclose(vel, g.vel_ned_m_s, atol=1e-5)
+        assert all(s.vertical_velocity and s.speed_accuracy_m_s == pytest.approx(0.1) for s in gnss)
     np.testing.assert_allclose([s.lat_deg for s in gnss], g.lat_deg, atol=1e-7)
     np.testing.assert_allclose([s.alt_m for s in gnss], g.alt_m, atol=1e-3)
     assert set(decoder.stats) <= {"accepted", "ignored"}  # nothing refused; ignored: the autopilot's heartbeats
@@ -228,7 +253,8 @@ def test_world_magnetic_model_field_when_none_is_configured():
     wmm = field_ned_gauss(47.3977, 8.5456, 488.0, 2027.0)
     np.testing.assert_allclose(cq.rotate(f.q_true, f.mag_true_gauss), np.tile(wmm, (len(f.t_ns), 1)), atol=1e-6)
     assert f.mag_field_ned_gauss == pytest.approx(wmm)
-    assert simulate(SimConfig(duration_s=0.1)).mag_field_ned_gauss == (0.21, 0.0, 0.43)
+    assert simulate(SimConfig(duration_s=0.1)).mag_field_ned_gauss == pytest.approx(field_ned_gauss(47.3977, 8.5456, 488.0, 2026.5))
+    assert simulate(SimConfig(duration_s=0.1, mag_field_ned_gauss=(0.21, 0.0, 0.43))).mag_field_ned_gauss == (0.21, 0.0, 0.43)
 
 
 @pytest.mark.parametrize(

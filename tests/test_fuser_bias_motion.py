@@ -1,5 +1,6 @@
 """The gyro bias learnt in motion (VQF's motion bias estimation): from the tilt and heading corrections, at any rate."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -49,12 +50,17 @@ def _bias_state(sigma: float, estimate=(0.0, 0.0, 0.0)) -> BiasState:
     return BiasState(np.asarray(estimate, dtype=float), sigma**2 * np.eye(3))
 
 
+def _settled(state: BiasState) -> BiasState:
+    """``state`` as if its low-passes had long followed the tilt correction (it may teach the bias)."""
+    return dataclasses.replace(state, tilt_settled_s=math.inf)
+
+
 def test_one_update_is_the_scalar_kalman_update_on_the_horizontal_axes():
     """Level and still in the low-passes (R = I): a correction ``c`` over ``T`` measures ``b_hat - c / T`` on north
     and east with noise ``(noise / tau)^2 tau / T``; hand-worked scalar Kalman updates, down untouched."""
     params = BiasSettings(motion_tilt_noise_deg=0.5)
     sigma, tau, interval = 0.01, 3.0, 0.01
-    state = low_pass(_bias_state(sigma, (0.001, 0.002, 0.003)), quat.IDENTITY, tau, None, interval)
+    state = _settled(low_pass(_bias_state(sigma, (0.001, 0.002, 0.003)), quat.IDENTITY, tau, None, interval))
     drift = np.array([0.004, -0.002, 0.0])  # the true bias is estimate + this: the state turned by -drift T
     predicted = quat.IDENTITY
     posterior = quat.from_rotvec(-drift * interval)  # the correction undoes it (world frame)
@@ -65,9 +71,25 @@ def test_one_update_is_the_scalar_kalman_update_on_the_horizontal_axes():
     np.testing.assert_allclose(np.diag(after.covariance_rad2_s2), [(1 - k) * sigma**2, (1 - k) * sigma**2, sigma**2], rtol=1e-9)
 
 
+def test_the_tilt_teaches_nothing_until_its_low_passes_have_settled():
+    """A first reading, or the switch between the plain and the GNSS-aided tilt correction, starts the low-passes
+    again: for two time constants the correction is the start's transient, not the bias's response."""
+    tau, interval = 3.0, 0.01
+    posterior = quat.from_rotvec([-0.004 * interval, 0.0, 0.0])
+    state = low_pass(_settled(low_pass(_bias_state(0.01), quat.IDENTITY, tau, None, interval)), quat.IDENTITY, tau, None, interval,
+                     aided=True)  # the aiding starts
+    assert state.tilt_aided and state.tilt_settled_s == 0.0
+    steps = 0
+    while learn_in_motion(BiasSettings(), state, quat.IDENTITY, posterior, interval, tau, None, 0.0, 0.0).estimate_rad_s[0] == 0.0:
+        state = low_pass(state, quat.IDENTITY, tau, None, interval, aided=True)
+        steps += 1
+    assert steps * interval == pytest.approx(2.0 * tau, abs=1.5 * interval)
+    assert low_pass(state, quat.IDENTITY, tau, None, interval, aided=False).tilt_settled_s == 0.0  # the aiding ends
+
+
 def test_the_rotation_rate_makes_the_correction_a_poorer_measurement():
     """A gyro scale error ``s`` turns a rate ``w`` into a correction as a bias ``s w`` would: the gain falls."""
-    state = low_pass(_bias_state(0.01), quat.IDENTITY, 3.0, None, 0.01)
+    state = _settled(low_pass(_bias_state(0.01), quat.IDENTITY, 3.0, None, 0.01))
     posterior = quat.from_rotvec([-0.004 * 0.01, 0.0, 0.0])
     slow = learn_in_motion(BiasSettings(), state, quat.IDENTITY, posterior, 0.01, 3.0, None, 0.0, 0.01)
     fast = learn_in_motion(BiasSettings(), state, quat.IDENTITY, posterior, 0.01, 3.0, None, 5.0, 0.01)
@@ -78,7 +100,7 @@ def test_learning_in_motion_never_claims_more_than_the_floor_nor_loses_a_rest_me
     params = BiasSettings(floor_sigma_rad_s=0.003)
     posterior = quat.from_rotvec([-1e-5, 0.0, 0.0])
     for sigma, least in ((0.003, 0.003), (0.0005, 0.0005)):  # at the floor; measured better at rest
-        state = low_pass(_bias_state(sigma), quat.IDENTITY, 3.0, None, 0.01)
+        state = _settled(low_pass(_bias_state(sigma), quat.IDENTITY, 3.0, None, 0.01))
         for _ in range(200):
             state = learn_in_motion(params, state, quat.IDENTITY, posterior, 0.01, 3.0, None, 0.0, 0.0)
         assert math.sqrt(state.variance_rad2_s2) == pytest.approx(least, rel=1e-9)

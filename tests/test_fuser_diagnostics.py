@@ -13,10 +13,12 @@ from pathlib import Path
 
 import jsonschema
 import numpy as np
+import pytest
 
 from core import quaternion as quat
-from drivers.samples import ImuSample
-from fuser.config import FuserConfig
+from core.earth_field import field_ned_gauss
+from drivers.samples import GnssSample, ImuSample
+from fuser.config import FuserConfig, MagSettings
 from fuser.loop import FusionLoop
 from fuser.model.extrapolation import ahead_ns
 from fuser.record import CHANNELS, read_log
@@ -26,11 +28,18 @@ from fusion_inputs import SRC, TICK, imu_at
 LOG = Path(__file__).resolve().parent.parent / "logs" / "sim_magnet.mcap"
 
 
+def _reference_field(log) -> np.ndarray:
+    """The field the model must use: none is configured, so the WMM's at the log's first GNSS fix, on the
+    undated default (the simulated flight's clock is not a Unix time)."""
+    fix = next(s for s, _ in log.inputs() if isinstance(s, GnssSample) and s.lat_deg is not None)
+    return np.asarray(field_ned_gauss(fix.lat_deg, fix.lon_deg, fix.alt_m, MagSettings().wmm_undated_decimal_year))
+
+
 def _expected_heading_gate(log, config: FuserConfig) -> dict[int, str]:
     """Per recorded magnetometer sample (by its time): the gate the reading must meet, from the field's
     norm and its dip against the true down alone, or "" if neither is off by more than half again the gate's
     margin (readings near a threshold are left out)."""
-    field = np.asarray(config.mag.field_ned_gauss)
+    field = _reference_field(log)
     ref_norm, ref_dip = float(np.linalg.norm(field)), math.degrees(math.asin(field[2] / np.linalg.norm(field)))
     truth = log.truth()
     t_truth = np.array([t for t, _ in truth])
@@ -54,14 +63,16 @@ def _expected_heading_gate(log, config: FuserConfig) -> dict[int, str]:
 
 def test_replayed_heading_outcomes_match_the_magnet(tmp_path):
     # reading by reading (the disturbance detector's memory is tested in test_fuser_mag_disturbance.py)
-    config = FuserConfig().replace(mag={"disturbance_rejection": False})
+    config = FuserConfig(rate_hz=100.0).replace(mag={"disturbance_rejection": False})  # one tick per magnetometer sample
     out = tmp_path / "out.mcap"
     replay(LOG, out, config, progress=None)
     fused = read_log(out)
     schema = CHANNELS["/diagnostics"]
     records = [json.loads(m.data) for m in fused.of(["/diagnostics"])]
     estimates = fused.estimates()
-    assert len(records) == len(estimates)  # every tick here runs the gravity update
+    assert len(records) >= 0.99 * len(estimates)  # every tick here runs the heading update, but for a dropped IMU sample's
+    field = next(u for r in records for u in r["updates"] if u["update"] == "mag_field" and u["reason"] == "wmm")
+    assert field["field_ned_gauss"] == pytest.approx(_reference_field(read_log(LOG)).tolist(), abs=1e-12)
     for r in records[::50]:
         jsonschema.validate(r, schema)
     ahead = ahead_ns(config)  # an estimate is stamped this far past the tick whose samples it fused
@@ -93,7 +104,7 @@ def test_replayed_heading_outcomes_match_the_magnet(tmp_path):
 def test_gravity_diagnostics_say_why_an_impact_is_gated():
     """A sustained sideways 1.8 g: the low-passed norm leaves the gate (reason "norm"); before, the readings are
     fused with an innovation that is the tilt the acceleration fakes, within the gate."""
-    loop = FusionLoop(FuserConfig(latency_ms=0.0))
+    loop = FusionLoop(FuserConfig(rate_hz=100.0, latency_ms=0.0).replace(latency={"adaptive": False}))  # one tick per sample
     q = quat.from_rotvec([0.1, 0.0, 0.0])
     outcomes = []
     for k in range(1, 401):
@@ -102,7 +113,8 @@ def test_gravity_diagnostics_say_why_an_impact_is_gated():
         for e in loop.advance(t):
             outcomes.append(next(d for d in e.diagnostics if d["update"] == "gravity"))
     latest = loop.diagnostics()
-    assert set(latest) == {"gravity", "heading"} and latest["gravity"]["t_ns"] == 400 * TICK
+    assert set(latest) == {"gravity", "heading", "mag_field"} and latest["gravity"]["t_ns"] == 400 * TICK
+    assert latest["mag_field"]["reason"] == "fallback" and latest["mag_field"]["t_ns"] == TICK  # no GNSS: reported once, at the start
     settled = outcomes[200:300]
     assert all(d["outcome"] == "fused" and d["innovation_deg"] < 0.5 for d in settled)
     assert outcomes[-1]["outcome"] == "gated" and outcomes[-1]["reason"] == "norm" and outcomes[-1]["innovation_deg"] is None

@@ -34,14 +34,15 @@ AIDED_BOUND_DEG = 1.0
 
 
 def _flight_with_rest():
-    """(time ns, true q, samples) per IMU sample: ``REST_S`` seconds still at the flight's first attitude, then the flight."""
+    """(time ns, true q, samples) per IMU sample: ``REST_S`` seconds still at the flight's first attitude, then the flight
+    (with its GNSS fixes at 10 Hz, so that the first fix gives the WMM field mid-way and GNSS aiding can run)."""
     flight = simulate(SIM)
     rng = np.random.default_rng(5)
     period_ns = round(1e9 / SIM.imu_rate_hz)
     n = round(REST_S * SIM.imu_rate_hz)
     q0 = flight.q_true[0]
     f0 = quat.rotate(quat.conjugate(q0), [0.0, 0.0, -GRAVITY_M_S2]) + flight.accel_bias_m_s2[0]
-    m0 = quat.rotate(quat.conjugate(q0), np.asarray(SIM.mag_field_ned_gauss))
+    m0 = quat.rotate(quat.conjugate(q0), np.asarray(flight.mag_field_ned_gauss))
     t_start = int(flight.t_ns[0])
     out = []
     for k in range(n):
@@ -62,7 +63,7 @@ def _flight_with_rest():
 
 
 FLIGHT = _flight_with_rest()
-FLAGS = list(itertools.product([True, False], [True, False], [True, False], [True, False], ["off", "always", "auto"]))
+FLAGS = list(itertools.product([True, False], [True, False], [True, False], [True, False], ["off", "always", "auto"], [True, False]))
 
 
 def _errors(config: FuserConfig) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -86,11 +87,12 @@ def _errors(config: FuserConfig) -> tuple[np.ndarray, np.ndarray, dict]:
     return total, tilt, dict(loop.model.counters)
 
 
-@pytest.mark.parametrize("mag, feedback, rest, imu_check, attitude", FLAGS, ids=lambda v: str(v))
-def test_every_flag_combination_stays_accurate(mag, feedback, rest, imu_check, attitude):
+@pytest.mark.parametrize("mag, feedback, rest, imu_check, attitude, gnss", FLAGS, ids=lambda v: str(v))
+def test_every_flag_combination_stays_accurate(mag, feedback, rest, imu_check, attitude, gnss):
     config = FuserConfig().replace(mag={"enabled": mag}, bias={"feedback_enabled": feedback}, rest={"enabled": rest},
-                                   imu_check={"enabled": imu_check}, attitude={"mode": attitude})
+                                   imu_check={"enabled": imu_check}, attitude={"mode": attitude}, gnss={"enabled": gnss})
     total, tilt, counters = _errors(config)
+    assert (counters.get("gnss_fused", 0) > 30) == gnss, counters  # 10 Hz fixes over the 4-s flight, once converged
     rms = lambda v: float(np.sqrt(np.mean(v**2)))  # noqa: E731
     assert rms(tilt) < TILT_BOUND_DEG, rms(tilt)
     if attitude == "always":

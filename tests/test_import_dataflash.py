@@ -277,9 +277,10 @@ def test_gnss_fixes_and_the_autopilot_attitude_stream(written, imported):
     assert [s.fix_type for s in gnss] == [g[1] for g in written.gps]
     fixed = [(s, g) for s, g in zip(gnss, written.gps) if g[1] == 3]
     assert all(s.vel_ned_m_s is None and s.lat_deg is None for s, g in zip(gnss, written.gps) if g[1] < 2)  # no fix yet
-    for s, (_, _, lat, lon, alt, spd, crs, _) in fixed:
-        vn, ve, _ = s.vel_ned_m_s
-        assert math.hypot(vn, ve) == pytest.approx(spd, abs=0.006)  # GPS_RAW_INT: cm/s
+    for s, (_, _, lat, lon, alt, spd, crs, vz) in fixed:
+        vn, ve, vd = s.vel_ned_m_s
+        assert math.hypot(vn, ve) == pytest.approx(spd, abs=0.006)
+        assert s.vertical_velocity and vd == pytest.approx(vz, abs=1e-5)  # GPS's VZ (down, m/s) kept: GPS_INPUT
         assert math.degrees(math.atan2(ve, vn)) % 360.0 == pytest.approx(crs, abs=0.02) or spd < 0.05
         assert (s.lat_deg, s.lon_deg) == pytest.approx((lat, lon), abs=1.1e-7) and s.alt_m == pytest.approx(alt, abs=0.011)
     if written.path.stem == "new":

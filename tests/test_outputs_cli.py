@@ -89,3 +89,23 @@ def test_a_missing_package_is_one_line_naming_the_extra(monkeypatch, capsys) -> 
     assert main(["sim", "--scenario", "hover", "--speed", "0", "--no-zenoh", "-o", "", "--ros2"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == "bingham-fuser: --ros2 needs the 'rosbags' package: pip install 'bingham-fuser[ros2]'"
+
+
+def test_with_ros2_the_fusers_own_keys_go_through_the_router_not_a_second_listener(tmp_path: Path) -> None:
+    """`--ros2` with default zenoh endpoints: the bingham_fuser/<vehicle>/attitude estimates reach a client of the
+    ROS 2 router (a listening peer of the fuser's own, the old default, would reach nobody connected there)."""
+    router = f"tcp/127.0.0.1:{free_port()}"
+    cfg = tmp_path / "fuser.toml"
+    cfg.write_text(f'[fuser]\nrate_hz = 20\n[fuser.ros2]\nrouter_endpoint = "{router}"\n')
+    r = _session("router", listen=[router])
+    sub = _session("client", connect=[router])
+    estimates: list = []
+    s = sub.declare_subscriber("bingham_fuser/ros2veh/attitude", lambda x: estimates.append(json.loads(x.payload.to_bytes())))
+    try:
+        assert main(["sim", "--scenario", "hover", "--speed", "0", "-o", "", "--vehicle", "ros2veh", "--config", str(cfg), "--ros2"]) == 0
+    finally:
+        s.undeclare()
+        sub.close()
+        r.close()
+    assert len(estimates) > 100 and all("q_wxyz" in e for e in estimates)
+

@@ -54,6 +54,7 @@ its own.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
@@ -61,7 +62,11 @@ from core import quaternion as quat
 from fuser.config import BiasSettings
 from fuser.model.state import BiasState
 
-__all__ = ["learn_in_motion", "low_pass", "may_learn", "propagate"]
+__all__ = ["SETTLE_TIME_CONSTANTS", "learn_in_motion", "low_pass", "may_learn", "propagate"]
+
+SETTLE_TIME_CONSTANTS = 2.0
+"""The tilt correction teaches the bias once the low-passes have followed it for this many time constants: before,
+its response is still the start's transient (a first reading, a first aided pair), not the bias's."""
 
 def propagate(params: BiasSettings, state: BiasState, dt_s: float) -> BiasState:
     """The bias uncertainty grows by its random walk over ``dt_s``, each axis up to its initial value."""
@@ -70,16 +75,22 @@ def propagate(params: BiasSettings, state: BiasState, dt_s: float) -> BiasState:
     return state.with_covariance(covariance * np.outer(scale, scale))
 
 
-def low_pass(state: BiasState, predicted_q: np.ndarray, tilt_tau_s: float, heading_tau_s: float | None, interval_s: float) -> BiasState:
+def low_pass(state: BiasState, predicted_q: np.ndarray, tilt_tau_s: float, heading_tau_s: float | None, interval_s: float,
+             aided: bool = False) -> BiasState:
     """The rotation (body -> world) and the rotated bias estimate one more interval through the tilt
     correction's ``LP2`` (time constant ``tilt_tau_s``) and, for the vertical axis, the heading correction's
-    single low-pass (``heading_tau_s``; None: no heading reading this tick, the vertical memory is kept)."""
+    single low-pass (``heading_tau_s``; None: no heading reading this tick, the vertical memory is kept).
+
+    ``aided``: the tilt correction is GNSS-aided's (:mod:`fuser.model.velocity`). When the correction changes
+    (aiding starts or ends), the correction's own low-pass starts again from its first reading, not from the
+    other's history: the memory here starts again too, and :func:`learn_in_motion` waits for it to settle."""
     if interval_s <= 0.0:  # a reading at the same time again (or a clock that went back): nothing new
         return state
     rotation = quat.to_matrix(predicted_q)
     rotated = rotation @ state.estimate_rad_s
-    if state.rotation_lp is None or state.rotated_lp_rad_s is None:
-        return state.with_low_pass(np.stack([rotation, rotation, rotation]), np.stack([rotated, rotated, rotated]))
+    if state.rotation_lp is None or state.rotated_lp_rad_s is None or aided != state.tilt_aided:
+        return replace(state, rotation_lp=np.stack([rotation, rotation, rotation]), rotated_lp_rad_s=np.stack([rotated, rotated, rotated]),
+                       tilt_aided=aided, tilt_settled_s=0.0)
     r, b = state.rotation_lp.copy(), state.rotated_lp_rad_s.copy()
     a = min(1.0, interval_s / tilt_tau_s)
     r[0] += a * (rotation - r[0])
@@ -90,35 +101,44 @@ def low_pass(state: BiasState, predicted_q: np.ndarray, tilt_tau_s: float, headi
         a = min(1.0, interval_s / heading_tau_s)
         r[2] += a * (rotation - r[2])
         b[2] += a * (rotated - b[2])
-    return state.with_low_pass(r, b)
+    return replace(state, rotation_lp=r, rotated_lp_rad_s=b, tilt_settled_s=state.tilt_settled_s + interval_s)
 
 
 def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray,
-                    interval_s: float, tilt_tau_s: float, heading: tuple[float, float, float] | None, rate_rad_s: float,
-                    scale_error: float) -> BiasState:
-    """Kalman update of the bias with the tick's tilt correction and, with ``heading = (tau_s, error_rad,
-    correlation_s)`` (the heading update fused), its heading correction (module docstring); call after
-    :func:`low_pass`.
+                    tilt_interval_s: float | None, tilt_tau_s: float, heading: tuple[float, float, float, float] | None,
+                    rate_rad_s: float, scale_error: float) -> BiasState:
+    """Kalman update of the bias with the tick's tilt correction (``tilt_interval_s``: the time since the tilt
+    was last measured, the correction being a rate over it; None: the tilt was not measured in this tick) and,
+    with ``heading = (tau_s, error_rad, correlation_s, interval_s)`` (the heading update fused), its heading
+    correction (module docstring); call after :func:`low_pass`.
 
-    ``interval_s`` is the time since the previous reading: the correction is
-    a rate over it. Each correction rate's noise is the error of what it
-    corrects towards (``motion_tilt_noise_deg``, the magnetometer's
-    ``error_rad``) over its time constant, counted once per time constant or,
-    for the magnetometer's, once per its error's correlation time if longer
-    (consecutive corrections share the error). The uncertainty shrinks to ``floor_sigma_rad_s``
-    at most (a bias known better from rest stays as known).
+    Each correction rate's noise is the error of what it corrects towards
+    (``motion_tilt_noise_deg``, the magnetometer's ``error_rad``) over its
+    time constant, counted once per time constant or, for the
+    magnetometer's, once per its error's correlation time if longer
+    (consecutive corrections share the error). The uncertainty shrinks to
+    ``floor_sigma_rad_s`` at most (a bias known better from rest stays as known).
     """
     assert state.rotation_lp is not None and state.rotated_lp_rad_s is not None
-    if interval_s <= 0.0:
-        return state
-    correction = quat.to_rotvec(quat.multiply(posterior_q, quat.conjugate(predicted_q))) / interval_s  # world frame
+    rotvec = quat.to_rotvec(quat.multiply(posterior_q, quat.conjugate(predicted_q)))  # world frame
     spurious = (scale_error * rate_rad_s) ** 2  # a scale error turns the rate into a correction as a bias would
-    tilt_noise = ((math.radians(params.motion_tilt_noise_deg) / tilt_tau_s) ** 2 + spurious) * tilt_tau_s / interval_s
-    rows, stage, noise = [0, 1], [1, 1], [tilt_noise, tilt_noise]  # north and east through LP2
-    if heading is not None:  # down through the heading correction's low-pass
-        tau, error, correlation = heading
-        rows, stage, noise = rows + [2], stage + [2], noise + [((error / tau) ** 2 + spurious) * max(tau, correlation) / interval_s]
-    y = state.rotated_lp_rad_s[stage, rows] - correction[rows]
+    rows: list[int] = []
+    stage: list[int] = []
+    noise: list[float] = []
+    correction: list[float] = []
+    settled = state.tilt_settled_s >= SETTLE_TIME_CONSTANTS * tilt_tau_s
+    if settled and tilt_interval_s is not None and tilt_interval_s > 0.0:  # north and east through LP2
+        tilt_noise = ((math.radians(params.motion_tilt_noise_deg) / tilt_tau_s) ** 2 + spurious) * tilt_tau_s / tilt_interval_s
+        rows, stage, noise = [0, 1], [1, 1], [tilt_noise, tilt_noise]
+        correction = [rotvec[0] / tilt_interval_s, rotvec[1] / tilt_interval_s]
+    if heading is not None and heading[3] > 0.0:  # down through the heading correction's low-pass
+        tau, error, correlation, interval_s = heading
+        rows, stage = rows + [2], stage + [2]
+        noise.append(((error / tau) ** 2 + spurious) * max(tau, correlation) / interval_s)
+        correction.append(rotvec[2] / interval_s)
+    if not rows:
+        return state
+    y = state.rotated_lp_rad_s[stage, rows] - np.array(correction)
     h = state.rotation_lp[stage, rows, :]
     covariance = state.covariance_rad2_s2
     gain = covariance @ h.T @ np.linalg.inv(h @ covariance @ h.T + np.diag(noise))
@@ -129,7 +149,7 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
     floor = min(params.floor_sigma_rad_s**2, state.variance_rad2_s2)
     if np.trace(learnt) / 3.0 < floor:  # no surer than the floor (or than it was) from motion alone
         learnt = learnt * (floor / (np.trace(learnt) / 3.0))
-    return BiasState(estimate, learnt, state.rotation_lp, state.rotated_lp_rad_s)
+    return state.with_estimate(estimate, learnt)
 
 
 def may_learn(params: BiasSettings, at_rest: bool, accel_trusted: bool, prior_doubt_deg: float) -> bool:

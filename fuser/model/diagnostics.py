@@ -29,11 +29,15 @@ class UpdateDiagnostic:
     """One update's account of one tick. Angles in degrees; None where the update stopped before computing it."""
 
     update: str
-    """``gravity``, ``heading`` or ``attitude``."""
+    """``gravity``, ``heading``, ``attitude``, ``velocity`` (a GNSS fix differenced, :mod:`fuser.model.velocity`)
+    or ``mag_field`` (the reference field in use, :mod:`fuser.model.field`)."""
     outcome: Outcome
     reason: str = ""
     """Why it was gated: ``norm`` (specific force or field norm off), ``dip`` (field dip off),
-    ``innovation`` (outside the gate), ``before_tilt`` (a heading needs the tilt first)."""
+    ``innovation`` (outside the gate), ``before_tilt`` (a heading needs the tilt first); for ``velocity``
+    ``no_fix``, ``stale`` (the receiver repeated its last solution), ``jump`` (its acceleration disagrees with
+    the accelerometer's), ``gap`` (no earlier fix to difference with), ``unselected`` (another receiver is
+    used), ``unconverged`` (the tilt is not known well enough yet to start the aiding); for ``mag_field`` the field's source (``config``, ``wmm``, ``fallback``)."""
     innovation_deg: float | None = None
     """Angle between the measurement and the prediction: down's direction (gravity), yaw (heading),
     the whole rotation (attitude)."""
@@ -41,17 +45,20 @@ class UpdateDiagnostic:
     """Measurement sigma the update used (per tick)."""
     test_ratio: float | None = None
     """Squared innovation over the squared gate (module docstring): > 1 is outside."""
+    values: tuple[tuple[str, Any], ...] = ()
+    """Further named values of this update, in order (``mag_field``: the field and where it is from; ``velocity``:
+    the acceleration check in m/s^2; the aided ``gravity``: what aided it); added to the record as keys."""
 
     @classmethod
     def of(cls, update: str, outcome: Outcome, reason: str = "", innovation_rad: float | None = None,
-           sigma_rad: float | None = None, test_ratio: float | None = None) -> UpdateDiagnostic:
+           sigma_rad: float | None = None, test_ratio: float | None = None, values: tuple[tuple[str, Any], ...] = ()) -> UpdateDiagnostic:
         """From radians, as the updates compute them."""
         deg = None if innovation_rad is None else math.degrees(innovation_rad)
-        return cls(update, outcome, reason, deg, None if sigma_rad is None else math.degrees(sigma_rad), test_ratio)
+        return cls(update, outcome, reason, deg, None if sigma_rad is None else math.degrees(sigma_rad), test_ratio, values)
 
     def to_dict(self) -> dict[str, Any]:
         return {"update": self.update, "outcome": self.outcome, "reason": self.reason, "innovation_deg": self.innovation_deg,
-                "sigma_deg": self.sigma_deg, "test_ratio": self.test_ratio}
+                "sigma_deg": self.sigma_deg, "test_ratio": self.test_ratio, **dict(self.values)}
 
 
 _COUNTERS = {
@@ -63,6 +70,13 @@ _COUNTERS = {
     ("heading", "gated", "dip"): "mag_gated_dip",
     ("heading", "gated", "innovation"): "mag_gated_innovation",
     ("heading", "reanchored", ""): "mag_reanchored",
+    ("velocity", "fused", ""): "gnss_fused",
+    ("velocity", "gated", "no_fix"): "gnss_no_fix",
+    ("velocity", "gated", "stale"): "gnss_stale",
+    ("velocity", "gated", "jump"): "gnss_jump",
+    ("velocity", "gated", "gap"): "gnss_gap",
+    ("velocity", "gated", "unselected"): "gnss_unselected",
+    ("velocity", "gated", "unconverged"): "gnss_unconverged",
 }
 """The status counter each outcome is counted in (names kept from before the diagnostics existed)."""
 

@@ -9,18 +9,24 @@ or a local computed above it.
 1. **Predict** (:mod:`~fuser.model.propagation`): each IMU's gyro
    integrated, the attitude rotated and composed with the process noise in
    closed form (progressive paper, Alg. 1).
-2. **Update**: gravity (:mod:`~fuser.model.gravity`), heading
+2. **Update**: GNSS velocity differenced into the world acceleration
+   (:mod:`~fuser.model.velocity`) and the reference field from the GNSS
+   position (:mod:`~fuser.model.field`); gravity (:mod:`~fuser.model.gravity`,
+   or its GNSS-aided variant while fixes come), heading
    (:mod:`~fuser.model.heading`) and the autopilot's attitude
    (:mod:`~fuser.model.attitude`), each gated against the prediction. Their
    likelihood exponents add, so the tick's product is one Bingham product
    and one eigendecomposition (QBF paper, sec. 5, eq. 3); only the first tilt
    ever measured is applied at once, for the heading that follows it.
 3. **Bias** (:mod:`~fuser.model.rest`, :mod:`~fuser.model.bias`): measured at
-   rest, learnt in motion from the tick's tilt correction.
-4. **Publish**: the posterior carried ahead of the tick to the instant it
-   is published (:mod:`~fuser.model.extrapolation`), widened by the model
-   error (:mod:`fuser.model_error`), by the error of a gyro rate held since
-   the last sample, and while an IMU is kept out.
+   rest, learnt in motion from the tick's tilt and heading corrections (a
+   Kalman filter on the bias, VQF's motion bias estimation); with GNSS the
+   tilt correction only at the ticks that measured it, over the aided
+   readings' spacing.
+4. **Publish**: the posterior carried ahead of the tick to the time it is
+   for (:mod:`~fuser.model.extrapolation`), widened by the model error
+   (:mod:`fuser.model_error`), by the error of a gyro rate held since the
+   last sample and over the lead, and while an IMU is kept out.
 
 The state is at the tick's end: the gyro carries it over the whole tick, and
 every reading is turned into the body frame of that instant.
@@ -28,14 +34,17 @@ every reading is turned into the body frame of that instant.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import Counter
+from functools import lru_cache
+
 import numpy as np
 
 from core.bingham import Bingham
 from core.filters import rms_angle_deg
 from core.normalization import Method
-from drivers.samples import AttitudeSample, ImuSample, MagSample
+from drivers.samples import AttitudeSample, GnssSample, ImuSample, MagSample
 from fuser import model_error
 from fuser.config import FuserConfig
 from fuser.model import bias as bias_feedback
@@ -43,15 +52,21 @@ from fuser.model.attitude import attitude_in_use, update_attitude
 from fuser.model.body_frame import lags_s, mean_in_state_body
 from fuser.model.diagnostics import UpdateDiagnostic, counter_name
 from fuser.model.extrapolation import ahead_ns, carry_ns, lead
+from fuser.model.field import heading_change_rad, turned_heading, update_field
 from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
 from fuser.model.heading import FieldReference, heading_sigma_rad, heading_time_constant_s, update_heading
 from fuser.model.imu_check import check_imus
 from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
-from fuser.model.state import FilterState, GyroState, HeadingState, initial_state
+from fuser.model.state import FilterState, GyroState, HeadingState, RestState, initial_state
 from fuser.model.tick import TickContext, TickInput, TickResult
+from fuser.model.velocity import track_velocity, update_gravity_aided
 
 __all__ = ["FusionModel"]
+
+
+_field_reference = lru_cache(maxsize=8)(FieldReference.of)
+"""The heading update's coefficients of a reference field (computed once per field)."""
 
 
 def _multiplied(belief: Bingham, exponent: np.ndarray) -> Bingham:
@@ -63,8 +78,7 @@ class FusionModel:
     """Bingham attitude fusion of any number of IMUs, magnetometers and attitude sources.
 
     ``config`` holds the parameters; :attr:`state` the persistent state (read,
-    set, :meth:`reset`); the field reference is a coefficient derived from
-    ``config`` once. :meth:`step` runs one tick.
+    set, :meth:`reset`), the reference field in use included. :meth:`step` runs one tick.
     """
 
     def __init__(self, config: FuserConfig, method: Method = "saddlepoint") -> None:
@@ -73,7 +87,6 @@ class FusionModel:
         """Normalization constant behind every moment match (:mod:`core.normalization`)."""
         self.counters: Counter[str] = Counter()
         """Events so far: readings gated by reason, gyro gaps, rest ticks, ..."""
-        self._field = FieldReference.of(config.mag.field_ned_gauss)
         self._ahead_ns = ahead_ns(config)
         self._carry_ns = carry_ns(config)
         self._state = initial_state(config)
@@ -99,6 +112,7 @@ class FusionModel:
         dt = tick.dt_ns * 1e-9
         placed = [x.t_ns for x in tick.samples] if tick.placed_ns is None else tick.placed_ns
         imu = [(x, t) for x, t in zip(tick.samples, placed) if isinstance(x, ImuSample)]
+        gnss = [(x, t) for x, t in zip(tick.samples, placed) if isinstance(x, GnssSample)]
         events: list[str] = []
 
         # 0. the vehicle's IMUs checked against each other: one that disagrees is kept out
@@ -117,6 +131,10 @@ class FusionModel:
         if motion.held:
             events.append("gyro_held")
         prediction = predict(cfg.gyro, cfg.bias, s.attitude, bias, motion, dt, self.method)
+        # the reference field: the WMM's at the first GNSS position (if not configured); the heading turned with its north
+        field, field_diagnostic = update_field(cfg.mag, s.field, [x for x, _ in gnss], tick.t_ns)
+        if cfg.mag.enabled and field.field_ned_gauss != s.field.field_ned_gauss:
+            prediction = dataclasses.replace(prediction, attitude=turned_heading(prediction.attitude, heading_change_rad(s.field, field)))
         if prediction.rate_rad_s is None:
             rate, error_state = s.gyro.rate_rad_s, s.model_error
         else:
@@ -131,19 +149,31 @@ class FusionModel:
         # 2. updates, gated against the prediction; their exponents add up to one product
         belief, exponent = prediction.attitude, np.zeros((4, 4))
         diagnostics: list[UpdateDiagnostic] = []
-        rest, heading, accel_trusted = s.rest, s.heading, False
+        rest, heading, accel_trusted, tilt_measured = s.rest, s.heading, False, False
+        if field.field_ned_gauss != s.field.field_ned_gauss:  # the disturbance detector starts again from the new reference
+            heading = dataclasses.replace(heading, disturbance=None)
         interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
-        if imu:
-            accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags_s(imu_placed, tick.t_ns), body_rate)
-            if cfg.rest.enabled and raw_rate is not None:
-                rest = detect_rest(cfg.rest, rest, raw_rate, accel, interval)
+        if field_diagnostic is not None:
+            diagnostics.append(field_diagnostic)
+        accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags_s(imu_placed, tick.t_ns), body_rate) if imu else None
+        tau = tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2)
+        velocity = track_velocity(cfg.gnss, cfg.accel, cfg.updates, s.velocity, gnss, gravity, accel, tick.t_ns, tick.dt_ns,
+                                  prediction.attitude, context.prior_doubt_deg, tau, motion.gap_s + motion.saturated_s > 0.0, self.method)
+        diagnostics += velocity.diagnostics
+        events += velocity.events
+        if accel is not None:
+            if cfg.rest.enabled and raw_rate is not None:  # a vehicle GNSS sees moving is not at rest
+                rest = RestState() if velocity.moving else detect_rest(cfg.rest, rest, raw_rate, accel, interval)
                 if rest.at_rest:
                     events.append("rest_ticks")
                     bias = measure_bias(cfg.rest, rest, bias, interval)
-            tilt_tau = tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2)
-            reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tilt_tau, predicted_q, interval)
-            gravity, accel_trusted = reading.state, reading.trusted
-            diagnostics.append(reading.diagnostic)
+            if velocity.active:
+                reading = update_gravity_aided(cfg.accel, cfg.gnss, cfg.updates, gravity, velocity, context, tau, predicted_q)
+            else:
+                reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval)
+            gravity, accel_trusted, tilt_measured = reading.state, reading.trusted, reading.exponent is not None
+            if reading.diagnostic is not None:
+                diagnostics.append(reading.diagnostic)
             if reading.exponent is not None:
                 exponent = exponent + reading.exponent
             if reading.apply_now:
@@ -152,10 +182,11 @@ class FusionModel:
         heading_tau, heading_fused = None, False
         if mag is not None:
             since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
-            heading = HeadingState(heading.gated_s, tick.t_ns, heading.field)
+            heading = HeadingState(heading.gated_s, tick.t_ns, heading.disturbance)
             sigma = heading_sigma_rad(cfg.mag, cfg.bias, gravity.converged, context, bias.variance_rad2_s2, since)
             rate_lp = rate if rest.gyro_lp_rad_s is None else float(np.linalg.norm(rest.gyro_lp_rad_s - bias.estimate_rad_s))
-            h = update_heading(cfg.mag, cfg.updates, self._field, heading, gravity, context, mag, belief.mode, sigma, rate_lp, since)
+            h = update_heading(cfg.mag, cfg.updates, _field_reference(field.field_ned_gauss), heading, gravity, context, mag, belief.mode,
+                               sigma, rate_lp, since)
             heading = h.state
             diagnostics.append(h.diagnostic)
             if h.exponent is not None:
@@ -174,13 +205,17 @@ class FusionModel:
             events += ["attitude_unused"] * len(attitudes)
         posterior = _multiplied(belief, exponent)
 
-        # 3. bias learnt in motion from the tick's tilt correction (VQF's motion bias estimation)
+        # 3. bias learnt in motion from the tick's corrections (VQF's motion bias estimation)
         if imu:
-            bias = bias_feedback.low_pass(bias, predicted_q, tilt_tau, heading_tau, interval)
-            if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, context.prior_doubt_deg):
-                heading_rows = ((heading_tau, math.radians(cfg.mag.error_deg), cfg.mag.correlation_s)
+            bias = bias_feedback.low_pass(bias, predicted_q, tau, heading_tau, interval, velocity.active)
+            # the heading correction teaches the bias whenever the tilt it relies on is trusted: the accelerometer's, or
+            # GNSS aiding's between its readings; the tilt correction only in the ticks that measured it, over the time
+            # since the previous reading (with GNSS, the aided readings' spacing)
+            if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted or velocity.active, context.prior_doubt_deg):
+                tilt_over = (velocity.interval_s if velocity.active else interval) if tilt_measured and accel_trusted else None
+                heading_rows = ((heading_tau, math.radians(cfg.mag.error_deg), cfg.mag.correlation_s, since)
                                 if heading_fused and heading_tau is not None and math.isfinite(heading_tau) else None)
-                bias = bias_feedback.learn_in_motion(cfg.bias, bias, predicted_q, posterior.mode, interval, tilt_tau, heading_rows,
+                bias = bias_feedback.learn_in_motion(cfg.bias, bias, predicted_q, posterior.mode, tilt_over, tau, heading_rows,
                                                      rate, cfg.gyro.scale_error_fraction)
 
         # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of that held rate, and an IMU kept out
@@ -191,7 +226,7 @@ class FusionModel:
 
         self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
                                   rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
-                                  model_error=error_state)
+                                  model_error=error_state, velocity=velocity.state, field=field)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
         return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters), self._ahead_ns)

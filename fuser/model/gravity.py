@@ -20,9 +20,10 @@ mid-manoeuvre is the misleading one. The low-pass starts at convergence from
 the filter's own estimate of down, an average of every reading fused so far,
 not from the one raw reading of that tick (which carries the vibration).
 
-A velocity-aided variant (the world acceleration from GNSS velocity taken
-out of the specific force before the low-pass) is one more function with
-this one's inputs and a :class:`GravityReading` out.
+While GNSS velocity aids it, the velocity-aided variant beside this one
+(:func:`fuser.model.velocity.update_gravity_aided`: the world acceleration
+from GNSS velocity taken out of the specific force, both low-passed alike)
+gives the :class:`GravityReading` instead.
 """
 
 from __future__ import annotations
@@ -57,7 +58,8 @@ class GravityReading:
     """The first tilt ever measured: apply it before the heading update, which needs to know which way is down."""
     trusted: bool
     """The accelerometer was converged and well inside its norm gate: the bias feedback may learn this tick."""
-    diagnostic: UpdateDiagnostic
+    diagnostic: UpdateDiagnostic | None
+    """None: no reading this tick (GNSS-aided, between two fixes)."""
 
 
 def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -> GravityState:

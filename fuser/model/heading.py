@@ -32,7 +32,7 @@ from core.observations import heading_exponent
 from fuser.config import BiasSettings, MagSettings, UpdateSettings
 from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model.gate import innovation_gate
-from fuser.model.state import FieldState, GravityState, HeadingState
+from fuser.model.state import MagDisturbanceState, GravityState, HeadingState
 from fuser.model.tick import TickContext
 
 __all__ = ["FieldReference", "HeadingReading", "heading_sigma_rad", "heading_time_constant_s", "track_field", "update_heading"]
@@ -98,8 +98,8 @@ def _off(params: MagSettings, norm: float, dip: float, ref_norm: float, ref_dip:
     return ""
 
 
-def track_field(params: MagSettings, reference: FieldReference, state: FieldState | None, norm: float, dip: float,
-                rate_lp_rad_s: float, interval_s: float) -> FieldState:
+def track_field(params: MagSettings, reference: FieldReference, state: MagDisturbanceState | None, norm: float, dip: float,
+                rate_lp_rad_s: float, interval_s: float) -> MagDisturbanceState:
     """The disturbance detector after one reading (VQF's magnetic disturbance detection and new field acceptance).
 
     Norm and dip are low-passed over ``current_s``. The field is undisturbed
@@ -111,7 +111,7 @@ def track_field(params: MagSettings, reference: FieldReference, state: FieldStat
     """
     interval_s = max(interval_s, 0.0)
     if state is None:
-        state = FieldState(norm, dip, reference.norm_gauss, reference.dip_rad, undisturbed_s=params.undisturbed_min_s,
+        state = MagDisturbanceState(norm, dip, reference.norm_gauss, reference.dip_rad, undisturbed_s=params.undisturbed_min_s,
                            candidate_norm_gauss=norm, candidate_dip_rad=dip)
     a = min(1.0, interval_s / params.current_s)
     norm = state.norm_gauss + a * (norm - state.norm_gauss)
@@ -139,7 +139,7 @@ def track_field(params: MagSettings, reference: FieldReference, state: FieldStat
         rejected_s = state.rejected_s + interval_s
     else:
         rejected_s = max(0.0, state.rejected_s - params.rejection_factor * interval_s)
-    return FieldState(norm, dip, ref_norm, ref_dip, disturbed, undisturbed_s, cand_norm, cand_dip, cand_s, rejected_s)
+    return MagDisturbanceState(norm, dip, ref_norm, ref_dip, disturbed, undisturbed_s, cand_norm, cand_dip, cand_s, rejected_s)
 
 
 def update_heading(params: MagSettings, updates: UpdateSettings, reference: FieldReference, state: HeadingState, gravity: GravityState,
@@ -164,12 +164,12 @@ def update_heading(params: MagSettings, updates: UpdateSettings, reference: Fiel
     # dip from the angle between the field and the measured gravity, both in the body frame,
     # so that a wrong tilt estimate cannot lock the magnetometer out
     dip = math.asin(max(-1.0, min(1.0, float(mag_body_gauss @ gravity.down_body) / norm)))
-    field = state.field
+    field = state.disturbance
     if params.disturbance_rejection:
         field = track_field(params, reference, field, norm, dip, rate_lp_rad_s, interval_s)
         off = _off(params, field.norm_gauss, field.dip_rad, field.reference_norm_gauss, field.reference_dip_rad)
         if field.disturbed and field.rejected_s <= params.max_rejection_s:
-            return HeadingReading(replace(state, field=field), None, UpdateDiagnostic.of("heading", "gated", off or "disturbed"))
+            return HeadingReading(replace(state, disturbance=field), None, UpdateDiagnostic.of("heading", "gated", off or "disturbed"))
         if field.disturbed:
             sigma_rad *= params.rejection_factor
     elif off := _off(params, norm, dip, reference.norm_gauss, reference.dip_rad):

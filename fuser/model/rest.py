@@ -51,4 +51,4 @@ def measure_bias(params: RestSettings, rest: RestState, bias: BiasState, dt_s: f
     gain = covariance @ np.linalg.inv(covariance + noise * np.eye(3))
     estimate = bias.estimate_rad_s + gain @ (rest.gyro_lp_rad_s - bias.estimate_rad_s)
     covariance = (np.eye(3) - gain) @ covariance
-    return BiasState(estimate, 0.5 * (covariance + covariance.T), bias.rotation_lp, bias.rotated_lp_rad_s)
+    return bias.with_estimate(estimate, 0.5 * (covariance + covariance.T))

@@ -13,17 +13,21 @@ stays valid after further ticks and can be set into another model.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal
+
 import numpy as np
 
 from core import quaternion as quat
 from core.bingham import Bingham
 from drivers.samples import Vec3
-from fuser.config import FuserConfig
+from fuser.config import FuserConfig, MagSettings
+from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model.imu_check import ImuCheckState
 from fuser.model_error import ModelErrorState
 
-__all__ = ["AttitudeState", "BiasState", "FieldState", "FilterState", "GravityState", "GyroState", "GyroTrack", "HeadingState", "RestState", "initial_state"]
+__all__ = ["AttitudeState", "BiasState", "FieldState", "FilterState", "GnssStream", "GravityState", "GyroState", "GyroTrack",
+           "HeadingState", "MagDisturbanceState", "RestState", "VelocityState", "initial_state"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,6 +75,10 @@ class BiasState:
     tilt correction's two stages, and after the heading correction's one (3 x 3 x 3; None until the first reading)."""
     rotated_lp_rad_s: np.ndarray | None = None
     """The rotated estimate ``R b`` through the same low-passes (3 x 3)."""
+    tilt_aided: bool = False
+    """The tilt correction the low-passes follow is GNSS-aided (:mod:`fuser.model.velocity`), not the plain one."""
+    tilt_settled_s: float = 0.0
+    """Seconds the low-passes have followed that same tilt correction (they start again when it changes)."""
 
     @property
     def variance_rad2_s2(self) -> float:
@@ -78,10 +86,10 @@ class BiasState:
         return float(np.trace(self.covariance_rad2_s2)) / 3.0
 
     def with_covariance(self, covariance_rad2_s2: np.ndarray) -> BiasState:
-        return BiasState(self.estimate_rad_s, covariance_rad2_s2, self.rotation_lp, self.rotated_lp_rad_s)
+        return replace(self, covariance_rad2_s2=covariance_rad2_s2)
 
-    def with_low_pass(self, rotation_lp: np.ndarray, rotated_lp_rad_s: np.ndarray) -> BiasState:
-        return BiasState(self.estimate_rad_s, self.covariance_rad2_s2, rotation_lp, rotated_lp_rad_s)
+    def with_estimate(self, estimate_rad_s: np.ndarray, covariance_rad2_s2: np.ndarray) -> BiasState:
+        return replace(self, estimate_rad_s=estimate_rad_s, covariance_rad2_s2=covariance_rad2_s2)
 
 
 @dataclass(frozen=True, slots=True)
@@ -113,7 +121,7 @@ class GravityState:
 
 
 @dataclass(frozen=True, slots=True)
-class FieldState:
+class MagDisturbanceState:
     """The magnetic disturbance detector (VQF's magnetic disturbance rejection; :mod:`fuser.model.heading`)."""
 
     norm_gauss: float
@@ -141,14 +149,85 @@ class HeadingState:
     """Seconds of continuous gating by innovation."""
     last_reading_ns: int | None = None
     """Tick of the last magnetometer reading: the heading's correlated error is counted per interval."""
-    field: FieldState | None = None
-    """The disturbance detector (None before the first reading)."""
+    disturbance: MagDisturbanceState | None = None
+    """The disturbance detector (None before the first reading, and again when the reference field changes)."""
 
 
 @dataclass(frozen=True, slots=True)
 class AttitudeState:
     gated_s: float = 0.0
     """Seconds the autopilot's attitude has been kept out as a jump."""
+
+
+FieldSource = Literal["config", "wmm", "fallback"]
+DateSource = Literal["config", "gnss", "timeline", "undated"]
+
+
+@dataclass(frozen=True, slots=True)
+class FieldState:
+    """The magnetometer's reference field in use and where it came from (:mod:`fuser.model.field`)."""
+
+    field_ned_gauss: tuple[float, float, float]
+    source: FieldSource
+    position: tuple[float, float, float] | None = None
+    """Latitude, longitude (deg) and altitude (m) the WMM was evaluated at (None: not yet)."""
+    decimal_year: float | None = None
+    date_source: DateSource | None = None
+    reported: bool = False
+    """Its ``mag_field`` diagnostic has been given."""
+
+    @classmethod
+    def of(cls, params: MagSettings) -> FieldState:
+        """The configured field, or the fallback until a GNSS position gives the WMM's."""
+        if params.field_ned_gauss is not None:
+            return cls(params.field_ned_gauss, "config")
+        return cls(params.fallback_field_ned_gauss, "fallback")
+
+    def diagnostic(self) -> UpdateDiagnostic:
+        """The ``mag_field`` diagnostic: the field, its source (as ``reason``), its declination and where it is from."""
+        n, e, d = self.field_ned_gauss
+        values: dict[str, Any] = {"field_ned_gauss": [n, e, d], "declination_deg": math.degrees(math.atan2(e, n))}
+        if self.position is not None:
+            values |= {"lat_deg": self.position[0], "lon_deg": self.position[1], "alt_m": self.position[2],
+                       "decimal_year": self.decimal_year, "date_source": self.date_source}
+        return UpdateDiagnostic("mag_field", "fused", self.source, values=tuple(values.items()))
+
+
+@dataclass(frozen=True, slots=True)
+class GnssStream:
+    """One GNSS stream's last new fix (:mod:`fuser.model.velocity`)."""
+
+    key: tuple
+    """(source, filtered): a receiver's fix and an autopilot's solution from one source are two streams."""
+    measured_ns: int
+    """When its velocity was measured, on the loop's timeline (placed time minus the latency)."""
+    vel_ned_m_s: Vec3
+    vertical: bool
+    """Its down component was measured."""
+    noise_m_s: float
+    """One-sigma velocity noise per axis."""
+
+
+@dataclass(frozen=True, slots=True)
+class VelocityState:
+    """GNSS velocity aiding's memory (:mod:`fuser.model.velocity`)."""
+
+    streams: tuple[GnssStream, ...] = ()
+    force_knots: tuple[tuple[int, np.ndarray, np.ndarray], ...] = ()
+    """(tick ns, integral of the specific force in the strapdown frame since the first knot (m/s), the tick's mean
+    specific force there (m/s^2)): the accelerometer's history, delayed to the GNSS intervals."""
+    body_lp_m_s2: np.ndarray | None = None
+    """Low-pass of the minus specific force over the GNSS intervals, in the strapdown frame (None: not aiding)."""
+    world_lp_m_s2: np.ndarray | None = None
+    """The same low-pass of ``g e_z - a`` (NED), ``a`` the GNSS acceleration over the same intervals."""
+    vertical: bool = True
+    """The last pair's vertical acceleration was measured (else taken as zero in the low-pass)."""
+    noise_var_m2_s4: float = 0.0
+    """Variance (per axis) of the GNSS velocity noise left in the world low-pass, (m/s^2)^2."""
+    noise_cov_m2_s3: float = 0.0
+    """Its covariance with the last fix's velocity noise (the next difference shares that fix), m^2/s^3."""
+    last_fused_ns: int | None = None
+    """The tick that last fused a pair into the low-pass."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -165,8 +244,13 @@ class FilterState:
     attitude_source: AttitudeState = AttitudeState()
     imu_check: ImuCheckState = ImuCheckState()
     model_error: ModelErrorState = ModelErrorState()
+    velocity: VelocityState = VelocityState()
+    field: FieldState = FieldState.of(MagSettings())
+    """The reference field (the default settings' until :func:`initial_state` gives the configured one)."""
 
 
 def initial_state(config: FuserConfig) -> FilterState:
-    """The start: a uniform attitude (no prior knowledge needed), zero bias with its initial uncertainty."""
-    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2 * np.eye(3)))
+    """The start: a uniform attitude (no prior knowledge needed), zero bias with its initial uncertainty, the
+    configured reference field (or the fallback until a GNSS position)."""
+    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2 * np.eye(3)),
+                       field=FieldState.of(config.mag))
