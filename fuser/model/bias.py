@@ -106,7 +106,7 @@ def low_pass(state: BiasState, predicted_q: np.ndarray, tilt_tau_s: float, headi
 
 def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray,
                     tilt_interval_s: float | None, tilt_tau_s: float, heading: tuple[float, float, float, float] | None,
-                    rate_rad_s: float, scale_error: float) -> BiasState:
+                    rate_rad_s: float, scale_error: float, tilt_excess_rad2: float = 0.0) -> BiasState:
     """Kalman update of the bias with the tick's tilt correction (``tilt_interval_s``: the time since the tilt
     was last measured, the correction being a rate over it; None: the tilt was not measured in this tick) and,
     with ``heading = (tau_s, error_rad, correlation_s, interval_s)`` (the heading update fused), its heading
@@ -118,6 +118,12 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
     magnetometer's, once per its error's correlation time if longer
     (consecutive corrections share the error). The uncertainty shrinks to
     ``floor_sigma_rad_s`` at most (a bias known better from rest stays as known).
+
+    ``tilt_excess_rad2``: what the low-passed specific force's norm says of the acceleration left in it. A
+    horizontal acceleration that turns it by ``theta`` lengthens it by ``1 / cos(theta)``: a relative norm
+    error ``d`` means ``theta^2 ~ 2 d`` of non-gravity in the direction the tilt follows, at least. In a
+    sustained coordinated turn (a fixed wing's 1.15 g at 30 deg of bank) that false vertical stays put in the
+    body frame and its correction looks exactly like a bias: its variance is added to the tilt noise.
     """
     assert state.rotation_lp is not None and state.rotated_lp_rad_s is not None
     rotvec = quat.to_rotvec(quat.multiply(posterior_q, quat.conjugate(predicted_q)))  # world frame
@@ -128,7 +134,7 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
     correction: list[float] = []
     settled = state.tilt_settled_s >= SETTLE_TIME_CONSTANTS * tilt_tau_s
     if settled and tilt_interval_s is not None and tilt_interval_s > 0.0:  # north and east through LP2
-        tilt_noise = ((math.radians(params.motion_tilt_noise_deg) / tilt_tau_s) ** 2 + spurious) * tilt_tau_s / tilt_interval_s
+        tilt_noise = ((math.radians(params.motion_tilt_noise_deg) ** 2 + tilt_excess_rad2) / tilt_tau_s**2 + spurious) * tilt_tau_s / tilt_interval_s
         rows, stage, noise = [0, 1], [1, 1], [tilt_noise, tilt_noise]
         correction = [rotvec[0] / tilt_interval_s, rotvec[1] / tilt_interval_s]
     if heading is not None and heading[3] > 0.0:  # down through the heading correction's low-pass

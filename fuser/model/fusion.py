@@ -215,8 +215,10 @@ class FusionModel:
                 tilt_over = (velocity.interval_s if velocity.active else interval) if tilt_measured and accel_trusted else None
                 heading_rows = ((heading_tau, math.radians(cfg.mag.error_deg), cfg.mag.correlation_s, since)
                                 if heading_fused and heading_tau is not None and math.isfinite(heading_tau) else None)
+                lp = None if velocity.active else gravity.accel_lp_m_s2  # aided: the acceleration is taken out, not guessed
+                excess = 0.0 if lp is None else 2.0 * abs(float(np.linalg.norm(lp)) - cfg.accel.gravity_m_s2) / cfg.accel.gravity_m_s2
                 bias = bias_feedback.learn_in_motion(cfg.bias, bias, predicted_q, posterior.mode, tilt_over, tau, heading_rows,
-                                                     rate, cfg.gyro.scale_error_fraction)
+                                                     rate, cfg.gyro.scale_error_fraction, excess)
 
         # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of that held rate, and an IMU kept out
         ahead = lead(cfg.gyro, track, bias.estimate_rad_s, tick.t_ns, self._carry_ns)
