@@ -38,7 +38,6 @@ __all__ = [
     "AccelSettings",
     "AttitudeSettings",
     "BiasSettings",
-    "ExtrapolationSettings",
     "FuserConfig",
     "GnssSettings",
     "GyroSettings",
@@ -214,32 +213,27 @@ class ImuCheckSettings(Settings):
 
 @dataclass(frozen=True)
 class BiasSettings(Settings):
-    """The gyro bias: a Gaussian beside the Bingham, measured at rest (:class:`RestSettings`) and learnt in motion
-    from the tilt and heading corrections (VQF's motion bias estimation, :mod:`fuser.model.bias`); its uncertainty
-    enters the process noise as a correlated error."""
+    """The gyro bias: a point estimate beside the Bingham, learnt at rest (:class:`RestSettings`) and by
+    integral feedback in slow motion; its uncertainty enters the process noise as a correlated error."""
 
     section: ClassVar[str] = "fuser.bias"
 
     initial_sigma_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.015
     """Uncertainty of the bias before it has been learnt (one sigma, per axis); also its ceiling."""
     floor_sigma_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 0.003
-    """The least uncertainty learning in motion brings the estimate to (one sigma, per axis): the corrections also
-    carry the slowly varying errors of what they follow, which their noise model counts as white; a bias measured
-    better at rest keeps its own."""
+    """Uncertainty the estimate settles to while it is learnt in motion (integral feedback)."""
     walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 1e-4
     """Random walk of the bias (temperature, instability): a bias learnt at rest is not trusted for ever."""
     feedback_enabled: bool = True
-    """Learn the bias in motion from the tick's tilt and heading corrections (VQF's motion bias estimation)."""
+    """Learn the bias in motion by integral feedback of the tick's correction (Mahony-style)."""
     time_constant_s: Seconds = 5.0
-    """Correlation time of the residual bias in the process noise while it is learnt in motion (an error held for
-    this long turns the attitude by itself times this)."""
+    """Time constant of the feedback, and the correlation time of the residual bias in the process noise."""
     correlation_without_feedback_s: Seconds = 10.0
-    """Correlation time of the residual bias in the process noise while it is not learnt in motion."""
-    motion_tilt_noise_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
-    """Error of the low-passed accelerometer's down that the tilt correction follows (linear acceleration the
-    low-pass leaves): over the tilt time constant, the noise of the tilt correction as a measurement of the bias."""
+    """Correlation time of the residual bias in the process noise while the feedback is off."""
+    learn_max_rate_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
+    """Feedback only in ticks rotating slower than this, with a trusted accelerometer."""
     learn_max_uncertainty_deg: Annotated[float, Range(gt=0, unit="deg")] = 5.0
-    """Learn in motion only when the prediction was this sure: a guess (uniform start, after a gap) is not drift."""
+    """Feedback only when the prediction was this sure: a guess (uniform start, after a gap) is not drift."""
     max_abs_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
     """Clamp of each axis of the estimate: beyond any MEMS gyro's bias, stops a wrong start from running away."""
     min_variance_rad2_s2: Annotated[float, Range(gt=0, unit="(rad/s)^2")] = 1e-18
@@ -332,28 +326,6 @@ class MagSettings(Settings):
     """Gate when the field's norm departs from the expected one by this fraction."""
     dip_gate_deg: Annotated[float, Range(gt=0, unit="deg")] = 10.0
     """Gate when the field's dip (against the measured gravity) departs from the expected one by this much."""
-    disturbance_rejection: bool = True
-    """Hold the heading on the gyro while the field is disturbed, and accept a new field once it has been steady
-    long enough (VQF's magnetic disturbance rejection, :mod:`fuser.model.heading`); false: gate reading by reading."""
-    current_s: Seconds = 0.05
-    """Low-pass of the measured norm and dip before they are compared (VQF's magCurrentTau)."""
-    reference_s: Seconds = 20.0
-    """Time constant over which the reference norm and dip follow the measured ones while undisturbed (magRefTau)."""
-    undisturbed_min_s: Seconds = 0.5
-    """A disturbed field must match the reference this long before the heading is measured again
-    (magMinUndisturbedTime)."""
-    new_field_s: Seconds = 20.0
-    """A field that stays steady (within the norm and dip thresholds of itself) this long while the sensor turns is
-    accepted as the new reference (magNewTime): the sensor has moved, the field has not been disturbed."""
-    new_field_min_rate_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 0.35
-    """Only time turning at least this fast (the rest detector's low-passed rate) counts towards ``new_field_s``:
-    a steady field seen from one attitude could still be a disturbance (magNewMinGyr, 20 deg/s)."""
-    max_rejection_s: Seconds = 60.0
-    """Longest the heading is held on the gyro; after it the disturbed field is fused with its sigma
-    ``rejection_factor`` times larger (magMaxRejectionTime). Undisturbed time pays it back ``rejection_factor``
-    times as fast."""
-    rejection_factor: Annotated[float, Range(ge=1)] = 2.0
-    """See ``max_rejection_s`` (magRejectionFactor)."""
 
     def _validate(self) -> None:
         for key in ("field_ned_gauss", "fallback_field_ned_gauss"):
@@ -425,23 +397,6 @@ class ModelErrorSettings(Settings):
     rate_s: Annotated[float, Range(ge=0, unit="s")] = 0.00225
     """Attitude error (rad, every axis) per rad/s of the recent RMS rotation rate: time-stamp and
     synchronisation errors (``rate dt``) and scale errors left over the correction time (``s rate T``)."""
-
-
-@dataclass(frozen=True)
-class ExtrapolationSettings(Settings):
-    """How far ahead of its tick the published estimate is carried by the gyro (:mod:`fuser.model.extrapolation`)."""
-
-    section: ClassVar[str] = "fuser.extrapolation"
-
-    to: Literal["hold_midpoint", "published", "tick"] = "hold_midpoint"
-    """``"published"``: to the instant the loop publishes it (``latency_ms`` after the tick), so that a consumer
-    gets the attitude of the moment it receives it; ``"hold_midpoint"``: half a tick period further, the middle
-    of the interval a consumer holds it; ``"tick"``: not carried (the attitude at the tick). The estimate is
-    stamped with the time it is for."""
-    imu_delay_ms: Annotated[float, Range(ge=0, unit="ms")] = 3.5
-    """How long before its stamp the motion an IMU sample describes happened: the IMU's filter group delay, plus
-    half the interval for a rate averaged over the interval since the previous sample. The published state is
-    carried this much further (the filter's state, like the samples, is that far behind its tick)."""
 
 
 @dataclass(frozen=True)
@@ -521,11 +476,7 @@ class FuserConfig(Settings):
     vehicle: str = "sim"
     """Name used in the zenoh key expressions ``bingham_fuser/<vehicle>/...``."""
     rate_hz: Annotated[float, Range(gt=0, unit="Hz")] = 100.0
-    """Estimates per second (one per tick). A consumer holding the latest estimate sees it up to a period old (the
-    published state is carried to the middle of that period, ``extrapolation.to``). On BROAD, out of sample, 200 Hz
-    brings the error such a consumer sees at 286 Hz from 2.28 to 2.15 deg (inclination 1.27 to 0.99 times VQF's),
-    but at 200 Hz the JSBSim fixed wing's flight without GNSS diverges in its sustained turns (57.9 deg RMS while
-    reporting 4 deg; 14.8 at 100 Hz; cause not found), so the default stays 100 Hz."""
+    """Estimates per second (one per tick)."""
     latency_ms: Annotated[float, Range(ge=0, unit="ms")] = 5.0
     """How long a tick waits at least after its due time for samples still in flight (``[fuser.latency]``
     waits longer on links whose latency varies)."""
@@ -540,7 +491,6 @@ class FuserConfig(Settings):
     attitude: AttitudeSettings = AttitudeSettings()
     updates: UpdateSettings = UpdateSettings()
     model_error: ModelErrorSettings = ModelErrorSettings()
-    extrapolation: ExtrapolationSettings = ExtrapolationSettings()
     gnss: GnssSettings = GnssSettings()
     latency: LatencySettings = LatencySettings()
     zenoh: ZenohSettings = ZenohSettings()
@@ -572,6 +522,7 @@ MOVED: dict[str, str] = {
     "gyro_bias_floor_rad_s": "bias.floor_sigma_rad_s",
     "gyro_bias_walk_rad_s_rt_s": "bias.walk_rad_s_rt_s",
     "bias_time_constant_s": "bias.time_constant_s",
+    "bias_learn_max_rate_rad_s": "bias.learn_max_rate_rad_s",
     "rest_min_s": "rest.min_s",
     "rest_filter_s": "rest.filter_s",
     "rest_gyro_rad_s": "rest.gyro_rad_s",

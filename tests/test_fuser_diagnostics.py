@@ -20,7 +20,6 @@ from core.earth_field import field_ned_gauss
 from drivers.samples import GnssSample, ImuSample
 from fuser.config import FuserConfig, MagSettings
 from fuser.loop import FusionLoop
-from fuser.model.extrapolation import ahead_ns
 from fuser.record import CHANNELS, read_log
 from fuser.replay import replay
 from fusion_inputs import SRC, TICK, imu_at
@@ -62,8 +61,7 @@ def _expected_heading_gate(log, config: FuserConfig) -> dict[int, str]:
 
 
 def test_replayed_heading_outcomes_match_the_magnet(tmp_path):
-    # reading by reading (the disturbance detector's memory is tested in test_fuser_mag_disturbance.py)
-    config = FuserConfig(rate_hz=100.0).replace(mag={"disturbance_rejection": False})  # one tick per magnetometer sample
+    config = FuserConfig()
     out = tmp_path / "out.mcap"
     replay(LOG, out, config, progress=None)
     fused = read_log(out)
@@ -75,8 +73,7 @@ def test_replayed_heading_outcomes_match_the_magnet(tmp_path):
     assert field["field_ned_gauss"] == pytest.approx(_reference_field(read_log(LOG)).tolist(), abs=1e-12)
     for r in records[::50]:
         jsonschema.validate(r, schema)
-    ahead = ahead_ns(config)  # an estimate is stamped this far past the tick whose samples it fused
-    sensor_time = {e.t_ns: e.sensor_t_ns - ahead for e in estimates}
+    sensor_time = {e.t_ns: e.sensor_t_ns for e in estimates}
     expected = _expected_heading_gate(read_log(LOG), config)
     t0 = min(expected)
     checked = {"norm": 0, "dip": 0, "": 0}
@@ -104,7 +101,7 @@ def test_replayed_heading_outcomes_match_the_magnet(tmp_path):
 def test_gravity_diagnostics_say_why_an_impact_is_gated():
     """A sustained sideways 1.8 g: the low-passed norm leaves the gate (reason "norm"); before, the readings are
     fused with an innovation that is the tilt the acceleration fakes, within the gate."""
-    loop = FusionLoop(FuserConfig(rate_hz=100.0, latency_ms=0.0).replace(latency={"adaptive": False}))  # one tick per sample
+    loop = FusionLoop(FuserConfig(latency_ms=0.0).replace(latency={"adaptive": False}))
     q = quat.from_rotvec([0.1, 0.0, 0.0])
     outcomes = []
     for k in range(1, 401):

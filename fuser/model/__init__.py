@@ -4,19 +4,16 @@ The state starts uniform: no prior knowledge of the attitude is needed. Per
 tick (:meth:`FusionModel.step`, in :mod:`fuser.model.fusion`): each IMU's gyro
 is integrated and the attitude predicted in closed form; gravity, the
 magnetometer's heading and an autopilot's attitude are fused as exact
-Bingham likelihoods; the gyro bias, a Gaussian beside the Bingham, is
-measured at rest and learnt in motion from the tilt and heading corrections;
-a disturbed magnetic field is kept out while the heading runs on the gyro
-(VQF: D. Laidig, T. Seel, "VQF: Highly accurate IMU orientation estimation
-with bias estimation and magnetic disturbance rejection", Information Fusion
-91, 2023); the published state is carried ahead to the time it is read at.
+Bingham likelihoods; the gyro bias, a point estimate beside the Bingham, is
+learnt at rest directly and in motion by integral feedback (VQF: D. Laidig,
+T. Seel, "VQF: Highly accurate IMU orientation estimation with bias
+estimation and magnetic disturbance rejection", Information Fusion 91, 2023).
 
 One module per job: :mod:`~fuser.model.imu_check` (IMUs against each other),
 :mod:`~fuser.model.propagation` (gyro integration and prediction), :mod:`~fuser.model.gravity`, :mod:`~fuser.model.heading`,
 :mod:`~fuser.model.attitude` (the updates), :mod:`~fuser.model.gate` (their
 innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
 :mod:`~fuser.model.body_frame` (readings in the state's body frame),
-:mod:`~fuser.model.extrapolation` (the published state carried ahead),
 :mod:`~fuser.model.state` (the persistent state), :mod:`~fuser.model.tick`
 (what goes in and out of a tick), :mod:`~fuser.model.diagnostics` (what each
 update did).

@@ -19,14 +19,10 @@ or a local computed above it.
    and one eigendecomposition (QBF paper, sec. 5, eq. 3); only the first tilt
    ever measured is applied at once, for the heading that follows it.
 3. **Bias** (:mod:`~fuser.model.rest`, :mod:`~fuser.model.bias`): measured at
-   rest, learnt in motion from the tick's tilt and heading corrections (a
-   Kalman filter on the bias, VQF's motion bias estimation); with GNSS the
-   tilt correction only at the ticks that measured it, over the aided
-   readings' spacing.
-4. **Publish**: the posterior carried ahead of the tick to the time it is
-   for (:mod:`~fuser.model.extrapolation`), widened by the model error
+   rest, learnt from the tick's correction in slow motion.
+4. **Publish**: the posterior widened by the model error
    (:mod:`fuser.model_error`), by the error of a gyro rate held since the
-   last sample and over the lead, and while an IMU is kept out.
+   last sample, and while an IMU is kept out.
 
 The state is at the tick's end: the gyro carries it over the whole tick, and
 every reading is turned into the body frame of that instant.
@@ -51,10 +47,9 @@ from fuser.model import bias as bias_feedback
 from fuser.model.attitude import attitude_in_use, update_attitude
 from fuser.model.body_frame import lags_s, mean_in_state_body
 from fuser.model.diagnostics import UpdateDiagnostic, counter_name
-from fuser.model.extrapolation import ahead_ns, carry_ns, lead
 from fuser.model.field import heading_change_rad, turned_heading, update_field
 from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
-from fuser.model.heading import FieldReference, heading_sigma_rad, heading_time_constant_s, update_heading
+from fuser.model.heading import FieldReference, heading_sigma_rad, update_heading
 from fuser.model.imu_check import check_imus
 from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
@@ -87,8 +82,6 @@ class FusionModel:
         """Normalization constant behind every moment match (:mod:`core.normalization`)."""
         self.counters: Counter[str] = Counter()
         """Events so far: readings gated by reason, gyro gaps, rest ticks, ..."""
-        self._ahead_ns = ahead_ns(config)
-        self._carry_ns = carry_ns(config)
         self._state = initial_state(config)
 
     @property
@@ -149,9 +142,7 @@ class FusionModel:
         # 2. updates, gated against the prediction; their exponents add up to one product
         belief, exponent = prediction.attitude, np.zeros((4, 4))
         diagnostics: list[UpdateDiagnostic] = []
-        rest, heading, accel_trusted, tilt_measured = s.rest, s.heading, False, False
-        if field.field_ned_gauss != s.field.field_ned_gauss:  # the disturbance detector starts again from the new reference
-            heading = dataclasses.replace(heading, disturbance=None)
+        rest, heading, accel_trusted = s.rest, s.heading, False
         interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
         if field_diagnostic is not None:
             diagnostics.append(field_diagnostic)
@@ -171,7 +162,7 @@ class FusionModel:
                 reading = update_gravity_aided(cfg.accel, cfg.gnss, cfg.updates, gravity, velocity, context, tau, predicted_q)
             else:
                 reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval)
-            gravity, accel_trusted, tilt_measured = reading.state, reading.trusted, reading.exponent is not None
+            gravity, accel_trusted = reading.state, reading.trusted
             if reading.diagnostic is not None:
                 diagnostics.append(reading.diagnostic)
             if reading.exponent is not None:
@@ -179,19 +170,15 @@ class FusionModel:
             if reading.apply_now:
                 belief, exponent = _multiplied(belief, exponent), np.zeros((4, 4))
         mag = self._mag_in_state_body(tick, imu, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
-        heading_tau, heading_fused = None, False
         if mag is not None:
             since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
-            heading = HeadingState(heading.gated_s, tick.t_ns, heading.disturbance)
+            heading = HeadingState(heading.gated_s, tick.t_ns)
             sigma = heading_sigma_rad(cfg.mag, cfg.bias, gravity.converged, context, bias.variance_rad2_s2, since)
-            rate_lp = rate if rest.gyro_lp_rad_s is None else float(np.linalg.norm(rest.gyro_lp_rad_s - bias.estimate_rad_s))
-            h = update_heading(cfg.mag, cfg.updates, _field_reference(field.field_ned_gauss), heading, gravity, context, mag, belief.mode,
-                               sigma, rate_lp, since)
+            h = update_heading(cfg.mag, cfg.updates, _field_reference(field.field_ned_gauss), heading, gravity, context, mag, belief.mode, sigma)
             heading = h.state
             diagnostics.append(h.diagnostic)
             if h.exponent is not None:
                 exponent = exponent + h.exponent
-                heading_tau, heading_fused = heading_time_constant_s(sigma, context, since), h.diagnostic.outcome == "fused"
         attitudes = [x for x in tick.samples if isinstance(x, AttitudeSample)]
         attitude_source = s.attitude_source
         if attitudes and attitude_in_use(cfg.attitude, track, tick.t_ns):
@@ -205,33 +192,22 @@ class FusionModel:
             events += ["attitude_unused"] * len(attitudes)
         posterior = _multiplied(belief, exponent)
 
-        # 3. bias learnt in motion from the tick's corrections (VQF's motion bias estimation)
-        if imu:
-            bias = bias_feedback.low_pass(bias, predicted_q, tau, heading_tau, interval, velocity.active)
-            # the heading correction teaches the bias whenever the tilt it relies on is trusted: the accelerometer's, or
-            # GNSS aiding's between its readings; the tilt correction only in the ticks that measured it, over the time
-            # since the previous reading (with GNSS, the aided readings' spacing)
-            if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted or velocity.active, context.prior_doubt_deg):
-                tilt_over = (velocity.interval_s if velocity.active else interval) if tilt_measured and accel_trusted else None
-                heading_rows = ((heading_tau, math.radians(cfg.mag.error_deg), cfg.mag.correlation_s, since)
-                                if heading_fused and heading_tau is not None and math.isfinite(heading_tau) else None)
-                lp = None if velocity.active else gravity.accel_lp_m_s2  # aided: the acceleration is taken out, not guessed
-                excess = 0.0 if lp is None else 2.0 * abs(float(np.linalg.norm(lp)) - cfg.accel.gravity_m_s2) / cfg.accel.gravity_m_s2
-                bias = bias_feedback.learn_in_motion(cfg.bias, bias, predicted_q, posterior.mode, tilt_over, tau, heading_rows,
-                                                     rate, cfg.gyro.scale_error_fraction, excess)
+        # 3. bias feedback from the tick's correction
+        if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, rate, context.prior_doubt_deg):
+            # the correction spans the ticks since the bias last learnt: in motion with GNSS, the aided readings' spacing
+            learnt_over = velocity.interval_s if velocity.active and velocity.moving else interval
+            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, learnt_over)
 
-        # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of that held rate, and an IMU kept out
-        ahead = lead(cfg.gyro, track, bias.estimate_rad_s, tick.t_ns, self._carry_ns)
-        widening = motion.hold_variance_rad2 + ahead.variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
-        carried = posterior if ahead.rotation is None else posterior.rotate_right(ahead.rotation)
-        published = model_error.published(cfg.model_error, carried, error_state.rate_sq, cfg.mag.enabled, widening)
+        # 4. publish: widened by the model error, the error of a rate held since the last sample, and an IMU kept out
+        widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
+        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening)
 
         self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
                                   rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
                                   model_error=error_state, velocity=velocity.state, field=field)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
-        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters), self._ahead_ns)
+        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))
 
     def _mag_in_state_body(self, tick: TickInput, imu: list[tuple[ImuSample, int]], body_rate: np.ndarray | None) -> np.ndarray | None:
         """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body

@@ -13,7 +13,7 @@ stays valid after further ticks and can be set into another model.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -27,7 +27,7 @@ from fuser.model.imu_check import ImuCheckState
 from fuser.model_error import ModelErrorState
 
 __all__ = ["AttitudeState", "BiasState", "FieldState", "FilterState", "GnssStream", "GravityState", "GyroState", "GyroTrack",
-           "HeadingState", "MagDisturbanceState", "RestState", "VelocityState", "initial_state"]
+           "HeadingState", "RestState", "VelocityState", "initial_state"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -65,31 +65,10 @@ class GyroState:
 
 @dataclass(frozen=True, slots=True)
 class BiasState:
-    """The gyro bias (rad/s, body FRD), a Gaussian beside the attitude (:mod:`fuser.model.bias`)."""
+    """The gyro bias estimate (rad/s, body FRD) and the variance of each axis ((rad/s)^2)."""
 
     estimate_rad_s: np.ndarray
-    covariance_rad2_s2: np.ndarray
-    """3x3 covariance of the estimate's error ((rad/s)^2)."""
-    rotation_lp: np.ndarray | None = None
-    """The attitude's rotation matrix (body -> world) low-passed for the motion estimate: after each of the
-    tilt correction's two stages, and after the heading correction's one (3 x 3 x 3; None until the first reading)."""
-    rotated_lp_rad_s: np.ndarray | None = None
-    """The rotated estimate ``R b`` through the same low-passes (3 x 3)."""
-    tilt_aided: bool = False
-    """The tilt correction the low-passes follow is GNSS-aided (:mod:`fuser.model.velocity`), not the plain one."""
-    tilt_settled_s: float = 0.0
-    """Seconds the low-passes have followed that same tilt correction (they start again when it changes)."""
-
-    @property
-    def variance_rad2_s2(self) -> float:
-        """Mean per-axis variance: the uncertainty the time constants and the process noise scale with."""
-        return float(np.trace(self.covariance_rad2_s2)) / 3.0
-
-    def with_covariance(self, covariance_rad2_s2: np.ndarray) -> BiasState:
-        return replace(self, covariance_rad2_s2=covariance_rad2_s2)
-
-    def with_estimate(self, estimate_rad_s: np.ndarray, covariance_rad2_s2: np.ndarray) -> BiasState:
-        return replace(self, estimate_rad_s=estimate_rad_s, covariance_rad2_s2=covariance_rad2_s2)
+    variance_rad2_s2: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,36 +100,11 @@ class GravityState:
 
 
 @dataclass(frozen=True, slots=True)
-class MagDisturbanceState:
-    """The magnetic disturbance detector (VQF's magnetic disturbance rejection; :mod:`fuser.model.heading`)."""
-
-    norm_gauss: float
-    """Measured field norm, low-passed over ``mag.current_s``."""
-    dip_rad: float
-    """Measured dip (against the measured gravity), low-passed likewise."""
-    reference_norm_gauss: float
-    """The undisturbed field's norm and dip: from ``mag.field_ned_gauss``, then following the measured field while
-    undisturbed, or a new field once accepted."""
-    reference_dip_rad: float
-    disturbed: bool = False
-    undisturbed_s: float = 0.0
-    """Seconds the field has matched the reference."""
-    candidate_norm_gauss: float = 0.0
-    """A steady field that might be a new reference, and the seconds of turning it has stayed steady."""
-    candidate_dip_rad: float = 0.0
-    candidate_s: float = 0.0
-    rejected_s: float = 0.0
-    """Seconds of disturbance the heading has been held on the gyro (paid back while undisturbed)."""
-
-
-@dataclass(frozen=True, slots=True)
 class HeadingState:
     gated_s: float = 0.0
     """Seconds of continuous gating by innovation."""
     last_reading_ns: int | None = None
     """Tick of the last magnetometer reading: the heading's correlated error is counted per interval."""
-    disturbance: MagDisturbanceState | None = None
-    """The disturbance detector (None before the first reading, and again when the reference field changes)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -252,5 +206,5 @@ class FilterState:
 def initial_state(config: FuserConfig) -> FilterState:
     """The start: a uniform attitude (no prior knowledge needed), zero bias with its initial uncertainty, the
     configured reference field (or the fallback until a GNSS position)."""
-    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2 * np.eye(3)),
+    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2),
                        field=FieldState.of(config.mag))
