@@ -307,8 +307,9 @@ def table(results: list[dict], config_note: str) -> list[str]:
     return lines
 
 
-def write_section(path: Path, tag: str, lines: list[str]) -> None:
-    begin, end = f"<!-- {tag}:begin (written by benchmarks/{tag}.py) -->", f"<!-- {tag}:end -->"
+def write_section(path: Path, tag: str, lines: list[str], writer: str | None = None) -> None:
+    """Replace (or append) the block between ``tag``'s markers in ``path``; ``writer`` names the command in the marker."""
+    begin, end = f"<!-- {tag}:begin (written by {writer or f'benchmarks/{tag}.py'}) -->", f"<!-- {tag}:end -->"
     text = path.read_text() if path.exists() else "# Benchmarks on real data\n\n"
     block = "\n".join([begin, *lines, end])
     if begin in text and end in text:
@@ -347,6 +348,10 @@ def main(argv=None) -> int:
     ap.add_argument("--no-plots", action="store_true")
     ap.add_argument("--no-write", action="store_true", help="do not update benchmarks/RESULTS.md")
     ap.add_argument("--json", help="also dump the per-trial results here")
+    ap.add_argument("--loto", action="store_true", help="leave-one-trial-out: fit on the other trials, score the held-out one "
+                    "(benchmarks/loto.py); VQF only")
+    ap.add_argument("--candidates", action="append", default=[], metavar="KEY=V1,V2",
+                    help="with --loto: a filter setting fitted on the other trials among these values (repeatable)")
     args = ap.parse_args(argv)
     try:
         import h5py  # noqa: F401
@@ -364,6 +369,8 @@ def main(argv=None) -> int:
         print(f"no .hdf5 trials in {args.trials}", file=sys.stderr)
         return 2
     print(f"BROAD: {len(trials)} trials from {args.trials}\n{BROAD_ATTRIBUTION}\n", flush=True)
+    if args.loto:
+        return main_loto(args, trials, config, sets)
     rng = np.random.default_rng(0)
     results = []
     plots = None if (args.quick or args.no_plots) else PLOTS
@@ -388,6 +395,30 @@ def main(argv=None) -> int:
     if not (args.quick or args.no_write):
         write_section(RESULTS, "broad", [f"### BROAD ({len(results)} trials, {time.strftime('%Y-%m-%d')})", "",
                                          "RMSE in degrees over the movement phases (BROAD's metric, no heading alignment).", "", *lines])
+    return 0
+
+
+def main_loto(args, trials: list[Path], config: FuserConfig, sets: dict) -> int:
+    import loto  # noqa: PLC0415 - imports this module
+
+    start = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        result = loto.run(trials, config, loto.parse_candidates(args.candidates), Path(tmp), log=lambda m: print(m, flush=True))
+    given = ("defaults" if not (args.config or sets) else f"{args.config or ''} {sets}".strip())
+    note = (f"model at git {model_revision()}; {given}" + (f"; fitted among {args.candidates}" if args.candidates else "")
+            + "; the per-trial reference field measured by the importer from the first 2 s")
+    lines = loto.table(result, note)
+    print("\n".join(lines))
+    print(f"({time.perf_counter() - start:.0f} s)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result["per_trial"], indent=1))
+    if not args.no_write:
+        figures = [] if args.no_plots else loto.plots(result, PLOTS)
+        write_section(RESULTS, "broad_loto", [f"### BROAD, leave one trial out ({len(trials)} trials, {time.strftime('%Y-%m-%d')})", "",
+                                              "RMSE in degrees over the movement phases (BROAD's metric, no heading alignment); every "
+                                              "fitted parameter fitted on the other trials (benchmarks/loto.py).", "", *lines, "",
+                                              *[f"![{p.stem}](broad_plots/{p.name})" for p in figures]],
+                      "benchmarks/broad.py --loto")
     return 0
 
 

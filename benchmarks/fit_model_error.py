@@ -29,7 +29,6 @@ Data: BROAD (Laidig et al., *Data* 6(7):72, 2021, doi:10.3390/data6070072, CC-BY
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import tempfile
 from dataclasses import dataclass
@@ -42,14 +41,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from broad import interp_quat  # noqa: E402
-from fuser.codec import Estimate, decode_sample  # noqa: E402
-from fuser.config import FuserConfig, MagSettings, ModelErrorSettings  # noqa: E402
-from fuser.importers import BROAD_ATTRIBUTION, broad_quat_to_ned, read_broad, write_mcap  # noqa: E402
+from fuser.config import FuserConfig, ModelErrorSettings  # noqa: E402
+from fuser.importers import BROAD_ATTRIBUTION  # noqa: E402
 from fuser.model_error import model_error_variances, widened_concentrations  # noqa: E402
-from fuser.pipeline import Pipeline  # noqa: E402
-from fuser.record import INPUT_TOPICS, read_log  # noqa: E402
-from fuser.replay import MAX_CATCH_UP_TICKS  # noqa: E402
 
 LEVELS = np.array([0.5, 0.9, 0.95])
 THRESHOLDS = chi2.ppf(LEVELS, 3)
@@ -67,36 +61,6 @@ class TrialStates:
     Z: np.ndarray
     rate_sq: np.ndarray
     q_true: np.ndarray
-
-
-def run_unwidened(path: Path, workdir: Path) -> TrialStates:
-    """One trial through import and the replay pipeline with no model error, keeping every tick."""
-    data = read_broad(path, 0.0, None)
-    mcap = workdir / f"{path.stem}.mcap"
-    summary = write_mcap(data, mcap)
-    config = FuserConfig(model_error=ModelErrorSettings(tilt_deg=0.0, heading_deg=0.0, rate_s=0.0),
-                         mag=MagSettings(field_ned_gauss=tuple(summary.mag_field_ned_gauss)))
-    ticks: list[tuple[Estimate, float]] = []
-    pipeline = Pipeline(config, max_catch_up_ticks=MAX_CATCH_UP_TICKS)
-    model = pipeline.loop.model
-    pipeline.outputs.append(lambda est: ticks.append((est, model.state.model_error.rate_sq)))
-    for m in read_log(mcap).of(INPUT_TOPICS):
-        pipeline.feed(*decode_sample(m.topic, json.loads(m.data)))
-    pipeline.finish()
-    ticks = [(e, r) for e, r in ticks if e.sensor_t_ns is not None]
-    fs = 1e9 / 3_500_000  # BROAD: exactly 3500 us per sample
-    x = np.array([e.sensor_t_ns for e, _ in ticks]) * 1e-9 * fs
-    inside = (x >= 0) & (x <= len(data.extra["q_es"]) - 1)
-    q_true, ok = interp_quat(data.extra["q_es"], x[inside])
-    movement = data.extra["movement"][np.clip(np.round(x[inside]).astype(int), 0, len(data.extra["movement"]) - 1)]
-    keep = np.nonzero(inside)[0][ok & movement]
-    return TrialStates(
-        name=path.stem,
-        M=np.array([ticks[i][0].M for i in keep]),
-        Z=np.array([ticks[i][0].Z for i in keep]),
-        rate_sq=np.array([ticks[i][1] for i in keep]),
-        q_true=broad_quat_to_ned(q_true[ok & movement]),
-    )
 
 
 def score(trial: TrialStates, params: ModelErrorSettings) -> tuple[np.ndarray, float]:
@@ -150,8 +114,10 @@ def main(argv=None) -> int:
         print(f"no .hdf5 trials in {args.trials}", file=sys.stderr)
         return 2
     print(f"BROAD: {len(paths)} trials from {args.trials}\n{BROAD_ATTRIBUTION}\n", flush=True)
+    from loto import load_trial, run_ticks, scored  # noqa: PLC0415 - loto imports this module's fit
+
     with tempfile.TemporaryDirectory() as tmp:
-        trials = [run_unwidened(p, Path(tmp)) for p in paths]
+        trials = [scored(t, run_ticks(t, FuserConfig())).at_time for t in (load_trial(p, Path(tmp)) for p in paths)]
     params, cov, ll = grid_scores(trials)
     n = len(trials)
     everyone = np.ones(n, bool)
