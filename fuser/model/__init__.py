@@ -11,7 +11,9 @@ estimation and magnetic disturbance rejection", Information Fusion 91, 2023).
 
 One module per job: :mod:`~fuser.model.imu_check` (IMUs against each other),
 :mod:`~fuser.model.propagation` (gyro integration and prediction), :mod:`~fuser.model.gravity`, :mod:`~fuser.model.heading`,
-:mod:`~fuser.model.attitude` (the updates), :mod:`~fuser.model.gate` (their
+:mod:`~fuser.model.attitude` (the updates), :mod:`~fuser.model.velocity` (GNSS velocity aiding of the
+gravity update), :mod:`~fuser.model.field` (the reference field from the WMM), :mod:`~fuser.model.unaided`
+(what an unaided accelerometer cannot see, for the published uncertainty), :mod:`~fuser.model.gate` (their
 innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
 :mod:`~fuser.model.body_frame` (readings in the state's body frame),
 :mod:`~fuser.model.state` (the persistent state), :mod:`~fuser.model.tick`
