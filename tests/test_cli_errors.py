@@ -17,16 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from fuser.config import load_config
+from local_net import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
 LOG = ROOT / "logs" / "sim_hover.mcap"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass

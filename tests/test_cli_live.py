@@ -33,6 +33,7 @@ from fuser.replay import replay
 
 os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
+from local_net import free_port  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 FUSER = [sys.executable, "-m", "fuser.cli"]
@@ -40,12 +41,6 @@ ENV = {**os.environ, "PYTHONPATH": str(ROOT), "PYTHONUNBUFFERED": "1"}
 IMU_HZ = 100
 SEND_S = 2.0
 SPOOF_AT_S = 1.0
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def read_mcap(path: Path) -> tuple[dict[str, list[tuple[int, int, dict]]], dict[str, dict[str, str]]]:

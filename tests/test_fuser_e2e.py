@@ -18,18 +18,17 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import can
 import numpy as np
-import pytest
 
 from drivers.scenarios import scenario
 from fuser import cli
 from fuser.evaluate import attitude_errors
 from fuser.publish import subscribe, zenoh_config
-from fuser.sender import SendFaults, send_flight
+from fuser.sender import send_flight
+from local_net import free_port, wait_for
 
 ROOT = Path(__file__).resolve().parent.parent
 FUSER = [sys.executable, "-m", "fuser.cli"]
@@ -48,19 +47,6 @@ took the real BROAD trials from 46 to 3.1 deg) cannot remove the drag-free simul
 centripetal acceleration in long banked turns (README, "Accuracy")."""
 MANOEUVRE_RMS_BOUND_DEG = 15.0
 """Only the fast manoeuvres (up to 500 deg/s, the last 7 s): measured 12.4 live."""
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(condition: Callable[[], bool], timeout: float, what: str) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        time.sleep(0.01)
 
 
 def sleep_until(unix_time: float) -> None:

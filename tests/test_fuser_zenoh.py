@@ -11,28 +11,15 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
 from fuser.codec import Estimate
 from fuser.publish import ZenohPublisher, format_estimate, listen, subscribe, zenoh_config
+from local_net import free_port, wait_for
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "subscribe.py"
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(condition: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.005)
 
 
 def estimates(n: int, seed: int) -> list[Estimate]:

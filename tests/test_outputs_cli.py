@@ -23,14 +23,9 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from fuser.cli import main  # noqa: E402
+from local_net import free_port  # noqa: E402
 
 SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
-
-
-def free_port(kind: int = socket.SOCK_STREAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _session(mode: str, **endpoints: list[str]) -> zenoh.Session:

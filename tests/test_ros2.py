@@ -9,10 +9,8 @@ from __future__ import annotations
 
 import json
 import re
-import socket
 import struct
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -30,6 +28,7 @@ from drivers.samples import ImuSample  # noqa: E402
 from fuser.frames import R_ENU_NED, enu_flu_from_ned_frd, orientation_covariance_enu, orientation_covariance_ned  # noqa: E402
 from fuser.record import read_log  # noqa: E402
 from fuser.ros2 import IMU_TYPE, POSE_TYPE, Ros2Publisher, Ros2Settings, resolve_topic  # noqa: E402
+from local_net import free_port, wait_for  # noqa: E402
 
 LOGS = Path(__file__).resolve().parent.parent / "logs"
 
@@ -46,19 +45,6 @@ JAZZY_HASHES = {
 }
 
 SCOUTING = {"multicast": {"enabled": False}, "gossip": {"enabled": False}}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(condition: Callable[[], bool], timeout: float = 10.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not condition():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.005)
 
 
 def session(mode: str, **endpoints: list[str]) -> zenoh.Session:
