@@ -45,7 +45,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import tempfile
 import time
@@ -266,10 +265,17 @@ def plot_trial(out: Path, title, t_b, e_b, unc_b, keep_b, u, t_s, e_v, e_m, vali
     ax.plot(t_s[::step], np.where(valid, e_v, np.nan)[::step], lw=0.6, color="C1", label="VQF")
     ax.plot(t_s[::step], np.where(valid, e_m, np.nan)[::step], lw=0.6, color="C2", alpha=0.7, label="Madgwick (beta 0.12)")
     ax.plot(t_b, np.where(keep_b, e_b, np.nan), lw=0.7, color="C0", label="Bingham fuser")
-    ax.set_ylim(0, max(5.0, float(np.nanpercentile(np.where(keep_b, e_b, np.nan), 99.5)) * 1.3))
+    finish_error_plot(fig, ax, f"BROAD {title}", float(np.nanpercentile(np.where(keep_b, e_b, np.nan), 99.5)), out)
+
+
+def finish_error_plot(fig, ax, title: str, top_deg: float, out: Path) -> None:
+    """Axes, legend and the dataset's attribution of a trial's error-over-time plot; saved to ``out`` and closed."""
+    import matplotlib.pyplot as plt
+
+    ax.set_ylim(0, max(5.0, top_deg * 1.3))
     ax.set_xlabel("trial time [s]   (only the movement phases are scored)")
     ax.set_ylabel("total error vs opt_quat [deg]")
-    ax.set_title(f"BROAD {title}", fontsize=10)
+    ax.set_title(title, fontsize=10)
     ax.legend(loc="upper left", fontsize=7, ncol=2)
     fig.text(0.99, 0.01, "data: BROAD (Laidig et al. 2021), CC-BY-4.0", ha="right", fontsize=6, color="0.4")
     fig.tight_layout()

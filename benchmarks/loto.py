@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-from broad import broad_errors, interp_quat, rmse, run_vqf
+from broad import broad_errors, finish_error_plot, interp_quat, rmse, run_vqf
 from core import quaternion as quat
 from fit_model_error import LEVELS, THRESHOLDS, TrialStates, best, grid_scores, score
 from fuser.codec import decode_sample
@@ -324,15 +324,7 @@ def plot_trial(out: Path, trial: Trial, s: Scored, model_error: ModelErrorSettin
     gaps = np.concatenate([[False], np.diff(s.t_at_time_s) > 0.05])
     ax.plot(s.t_at_time_s, np.where(gaps, np.nan, s.errors_at_time["total"]), lw=0.7, color="C0", label="fuser at its time")
     top = np.nanpercentile(np.concatenate([s.errors_at_time["total"], s.errors_held["total"]]), 99.5)
-    ax.set_ylim(0, max(5.0, float(top) * 1.3))
-    ax.set_xlabel("trial time [s]   (only the movement phases are scored)")
-    ax.set_ylabel("total error vs opt_quat [deg]")
-    ax.set_title(f"BROAD {trial.name}, held out", fontsize=10)
-    ax.legend(loc="upper left", fontsize=7, ncol=2)
-    fig.text(0.99, 0.01, "data: BROAD (Laidig et al. 2021), CC-BY-4.0", ha="right", fontsize=6, color="0.4")
-    fig.tight_layout()
-    fig.savefig(out)
-    plt.close(fig)
+    finish_error_plot(fig, ax, f"BROAD {trial.name}, held out", float(top), out)
 
 
 def plots(result: dict, folder: Path) -> list[Path]:
