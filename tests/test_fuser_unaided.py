@@ -12,8 +12,12 @@ import math
 import numpy as np
 import pytest
 
-from fuser.config import AccelSettings
-from fuser.model.unaided import excess_norm_sq_m2_s4, followed, unseen_variances_rad2
+from core import quaternion as quat
+from fuser.config import AccelSettings, UpdateSettings
+from fuser.model.gravity import turn_frame, update_gravity
+from fuser.model.state import GravityState
+from fuser.model.tick import TickContext
+from fuser.model.unaided import corrected, excess_norm_sq_m2_s4, followed, unaided_target, unseen_variances_rad2
 
 G = 9.80665
 
@@ -83,3 +87,55 @@ def test_the_heading_share_follows_the_inclination():
     assert unseen_variances_rad2(params, excess, (0.15, 0.15, 0.0)) == pytest.approx((tilt, 0.0))  # horizontal field
     assert unseen_variances_rad2(params, excess, None) == pytest.approx((tilt, 0.0))  # no magnetometer heading
     assert unseen_variances_rad2(params, excess, (0.0, 0.0, 0.5))[1] == pytest.approx(math.pi**2)  # at the pole
+
+
+def _excess_for_unseen_tilt(params: AccelSettings, tilt_deg: float) -> float:
+    """The excess whose unseen tilt is ``tilt_deg``: the tolerance's ``((1 + t)^2 - 1) g^2`` plus ``(g tan tilt)^2``."""
+    allowed = ((1.0 + params.unaided_norm_tolerance_fraction) ** 2 - 1.0) * G**2
+    return allowed + (G * math.tan(math.radians(tilt_deg))) ** 2
+
+
+def test_an_aided_reading_shrinks_the_unseen_tilt_by_its_own_gain():
+    """After a turn flown unaided, a GNSS-aided reading corrects the estimate by its gain ``k = p / (p + s^2)``
+    per axis (prior tilt 10 deg RMS over two axes: ``p`` = 50 deg^2; sigma 5 deg: ``k`` = 2/3), so a 30-deg unseen
+    tilt is 10 deg after it, and 10 / 3 after a second; a prior sure of itself (sigma huge) corrects nothing."""
+    params = AccelSettings()
+    excess = _excess_for_unseen_tilt(params, 30.0)
+    assert math.degrees(math.sqrt(unseen_variances_rad2(params, excess, None)[0])) == pytest.approx(30.0, abs=1e-9)
+    once = corrected(params, excess, 10.0, 5.0)
+    assert math.degrees(math.sqrt(unseen_variances_rad2(params, once, None)[0])) == pytest.approx(10.0, abs=1e-9)
+    twice = corrected(params, once, 10.0, 5.0)
+    assert math.degrees(math.sqrt(unseen_variances_rad2(params, twice, None)[0])) == pytest.approx(10.0 / 3.0, abs=1e-9)
+    assert corrected(params, excess, 10.0, 1e6) == pytest.approx(excess, rel=1e-6)
+    # an excess within the tolerance stays unseen (at most the tolerance's, never negative growth)
+    assert unseen_variances_rad2(params, corrected(params, -1.0, 10.0, 5.0), None) == (0.0, 0.0)
+
+
+def _gravity_tick(state: GravityState, f_body: np.ndarray, prior_doubt_deg: float, interval_s: float = 0.01):
+    tick = TickContext(dt_s=interval_s, process_variance_rad2=1e-6, prior_doubt_deg=prior_doubt_deg)
+    return update_gravity(AccelSettings(), UpdateSettings(), state, tick, f_body, 3.0, quat.IDENTITY.copy(), interval_s)
+
+
+def test_raw_readings_are_followed_at_once_and_the_low_pass_starts_from_their_mean():
+    """The fast start (prior doubt above ``updates.converged_deg``) fuses raw readings: in a 30-deg turn each is
+    the turn's specific force, so the unseen tilt is the turn's at once (no tilt time constant: the estimate
+    follows raw readings within ticks), and at convergence the low-pass starts from their time-weighted mean
+    (hand-computed), not from ``-g`` along the estimate's down, which would hide the turn's norm."""
+    params = AccelSettings(unaided_norm_tolerance_fraction=0.0)
+    f1, f2 = _turn_specific_force(30.0), _turn_specific_force(20.0)
+    first = _gravity_tick(GravityState(), f1, 40.0, 0.01).state
+    second = _gravity_tick(first, f2, 40.0, 0.03).state
+    assert second.accel_lp_m_s2 is None and second.raw_s == pytest.approx(0.04)
+    np.testing.assert_allclose(second.raw_mean_m_s2, 0.25 * f1 + 0.75 * f2, atol=1e-12)
+    target, follow_s = unaided_target(params, first, 0.01, 3.0)
+    assert follow_s == 0.01
+    assert math.degrees(math.sqrt(unseen_variances_rad2(params, followed(params, 0.0, target, 0.01, follow_s), None)[0])) == \
+        pytest.approx(30.0, abs=1e-9)
+    converged = _gravity_tick(second, f1, 1.0, 0.01).state  # alpha = 0.01 / 3
+    np.testing.assert_allclose(converged.accel_lp_m_s2, second.raw_mean_m_s2 + (0.01 / 3.0) * (f1 - second.raw_mean_m_s2), atol=1e-12)
+    assert converged.raw_mean_m_s2 is None
+    # a gyro gap breaks the frame: the low-pass and the raw readings' mean are dropped alike
+    broken = turn_frame(second, None, 0.005)
+    assert broken.raw_mean_m_s2 is None and broken.raw_s == 0.0 and not broken.converged
+    kept = turn_frame(second, None, 0.0)
+    np.testing.assert_array_equal(kept.raw_mean_m_s2, second.raw_mean_m_s2)

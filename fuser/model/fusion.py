@@ -55,8 +55,8 @@ from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
 from fuser.model.state import FilterState, GyroState, HeadingState, RestState, initial_state
 from fuser.model.tick import TickContext, TickInput, TickResult
-from fuser.model.unaided import excess_norm_sq_m2_s4, followed, unseen_variances_rad2
-from fuser.model.velocity import track_velocity, update_gravity_aided
+from fuser.model.unaided import corrected, followed, unaided_target, unseen_variances_rad2
+from fuser.model.velocity import tilt_doubt_deg, track_velocity, update_gravity_aided
 
 __all__ = ["FusionModel"]
 
@@ -165,8 +165,11 @@ class FusionModel:
                 reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval)
             gravity, accel_trusted = reading.state, reading.trusted
             # an acceleration the unaided accelerometer cannot tell from gravity, as far as the estimate follows it
-            target = 0.0 if velocity.active else excess_norm_sq_m2_s4(cfg.accel, gravity.accel_lp_m_s2)
-            excess = followed(cfg.accel, excess, target, interval, tau)
+            if not velocity.active:
+                target, follow_s = unaided_target(cfg.accel, gravity, interval, tau)
+                excess = followed(cfg.accel, excess, target, interval, follow_s)
+            elif reading.exponent is not None and reading.diagnostic is not None and reading.diagnostic.sigma_deg is not None:
+                excess = corrected(cfg.accel, excess, tilt_doubt_deg(prediction.attitude, self.method), reading.diagnostic.sigma_deg)
             if reading.diagnostic is not None:
                 diagnostics.append(reading.diagnostic)
             if reading.exponent is not None:

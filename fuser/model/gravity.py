@@ -17,8 +17,11 @@ which keeps the reported tilt uncertainty honest whatever the IMU rate.
 Until the state first converges the raw reading is used with
 ``accel.sigma_rad``, for a fast start; never after, when a raw reading
 mid-manoeuvre is the misleading one. The low-pass starts at convergence from
-the filter's own estimate of down, an average of every reading fused so far,
-not from the one raw reading of that tick (which carries the vibration).
+the mean of the raw readings fused before it (in the strapdown frame): what the
+estimate has followed, vibration averaged, and in a turn with the turn's norm,
+which the unaided widening (:mod:`fuser.model.unaided`) reads; from the
+filter's own estimate of down when there were none (the GNSS-aided update ran
+before, or nothing was fused yet).
 
 While GNSS velocity aids it, the velocity-aided variant beside this one
 (:func:`fuser.model.velocity.update_gravity_aided`: the world acceleration
@@ -65,11 +68,12 @@ class GravityReading:
 def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -> GravityState:
     """The strapdown frame after the tick's gyro rotation. A gap in the gyro (``gap_s`` of the tick without a
     rate) breaks the frame: the body turned by an unknown rotation, so the low-pass's memory is dropped and the
-    update starts again as before convergence (raw readings until the state is sure again)."""
+    update starts again as before convergence (raw readings until the state is sure again), their mean from the next."""
     q = state.q_strapdown if rotation is None else quat.normalize(quat.multiply(state.q_strapdown, rotation))
-    broken = gap_s > 0.0 and state.converged
-    return GravityState(q, None if broken else state.accel_lp_m_s2, state.down_body, state.converged and not broken, state.tilt_known,
-                        state.gated_s)
+    if gap_s > 0.0:  # the raw readings' mean too, converged or not
+        return GravityState(q, None, state.down_body, False, state.tilt_known, state.gated_s)
+    return GravityState(q, state.accel_lp_m_s2, state.down_body, state.converged, state.tilt_known, state.gated_s, state.raw_mean_m_s2,
+                        state.raw_s)
 
 
 def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_variance_rad2_s2: float) -> float:
@@ -92,17 +96,21 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     f_inertial = to_inertial @ accel_body_m_s2
     converged = state.converged or tick.prior_doubt_deg < updates.converged_deg
     predicted_down = quat.to_matrix(predicted_q)[2]  # R^T e_z: world down in the body
+    raw_mean, raw_s = state.raw_mean_m_s2, state.raw_s
     if not converged:
         lowpassed = None
     else:
-        # the low-pass starts from the filter's own estimate (at rest: -g down), not from one raw reading
-        start = to_inertial @ (-params.gravity_m_s2 * predicted_down) if state.accel_lp_m_s2 is None else state.accel_lp_m_s2
+        # the low-pass starts from what the estimate followed (the raw readings' mean), or from the estimate itself
+        start = state.accel_lp_m_s2
+        if start is None:
+            start = to_inertial @ (-params.gravity_m_s2 * predicted_down) if raw_mean is None else raw_mean
         lowpassed = start + min(1.0, interval_s / tau_s) * (f_inertial - start)
+        raw_mean, raw_s = None, 0.0
     measured = f_inertial if lowpassed is None else lowpassed
     norm = math.sqrt(float(measured @ measured))
     norm_error = abs(norm - params.gravity_m_s2) / params.gravity_m_s2
     if norm_error > params.norm_gate_fraction:
-        kept = GravityState(state.q_strapdown, lowpassed, state.down_body, converged, state.tilt_known, state.gated_s)
+        kept = GravityState(state.q_strapdown, lowpassed, state.down_body, converged, state.tilt_known, state.gated_s, raw_mean, raw_s)
         return GravityReading(kept, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"))
     filtered_body = measured @ to_inertial
     down_body = -filtered_body / norm
@@ -116,7 +124,10 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     outcome, gated_s = (verdict.outcome, verdict.gated_s) if state.tilt_known else ("fused", state.gated_s)
     diagnostic = UpdateDiagnostic.of("gravity", outcome, "innovation" if outcome == "gated" else "", innovation, sigma, verdict.test_ratio)
     fused = outcome != "gated"
-    after = GravityState(state.q_strapdown, lowpassed, down_body, converged, state.tilt_known or fused, gated_s)
+    if fused and lowpassed is None:  # a raw reading the estimate follows, into their mean
+        raw_s = raw_s + interval_s
+        raw_mean = f_inertial if raw_mean is None else raw_mean + (interval_s / raw_s) * (f_inertial - raw_mean)
+    after = GravityState(state.q_strapdown, lowpassed, down_body, converged, state.tilt_known or fused, gated_s, raw_mean, raw_s)
     if not fused:
         return GravityReading(after, None, False, False, diagnostic)
     trusted = converged and norm_error < 0.5 * params.norm_gate_fraction

@@ -97,6 +97,11 @@ class GravityState:
     """A gravity reading has been fused: the heading may be measured."""
     gated_s: float = 0.0
     """Seconds of continuous gating by innovation (re-anchored after ``updates.reanchor_after_s``)."""
+    raw_mean_m_s2: np.ndarray | None = None
+    """Mean of the raw readings fused before convergence, in the strapdown frame (None: none since the low-pass was
+    last in use or the frame broke): what the estimate has followed, and where the low-pass starts."""
+    raw_s: float = 0.0
+    """Seconds of raw readings in that mean."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -15,9 +15,9 @@ rate cannot grow for ever), while a horizontal one adds a positive square
 that a turn sustains. So the *signed* excess ``|f_lp|^2 - g^2`` of the
 low-passed specific force is followed as the estimate follows the low-pass
 (a first-order lag of the tilt time constant, gated readings included: a
-reading gated for long is re-anchored to; decaying the same way while GNSS
-velocity aids; none once the autopilot's attitude is fused, whose down is
-its own estimator's), so that the up-and-down of a hand-held or hovering sensor averages out and a
+reading gated for long is re-anchored to; at once while the update fuses raw
+readings, its fast start, which the estimate follows within ticks; none once
+the autopilot's attitude is fused, whose down is its own estimator's), so that the up-and-down of a hand-held or hovering sensor averages out and a
 turn's steady excess remains. Only then is it read as a horizontal
 acceleration, beyond a tolerance for the accelerometer's own scale error
 (``accel.unaided_norm_tolerance_fraction``; a sensor 1 % off would otherwise
@@ -33,6 +33,13 @@ axis at ``a`` to the field's horizontal turns the field's projection by
 Europe), ``d tan(I) / sqrt(2)`` in RMS over the axis, which the turn's
 direction sets and the model does not know. An estimate that cannot see the
 turn does not claim to.
+
+When GNSS velocity aiding starts (again) with an excess left, the tilt it
+stands for is not gone: the aided readings pull the estimate back by their
+gain, reading by reading (:func:`corrected`), and the widening shrinks only as
+fast. After a saturated gyro in a 20-deg banked turn (``tests/fault_flights.py``)
+the estimate is 15 deg off for 3 s while the first aided readings, noisy, count
+for little; it reported 5 deg before this, 12-15 deg with it.
 """
 
 from __future__ import annotations
@@ -42,8 +49,9 @@ import math
 import numpy as np
 
 from fuser.config import AccelSettings
+from fuser.model.state import GravityState
 
-__all__ = ["excess_norm_sq_m2_s4", "followed", "unseen_variances_rad2"]
+__all__ = ["corrected", "excess_norm_sq_m2_s4", "followed", "unaided_target", "unseen_variances_rad2"]
 
 
 def excess_norm_sq_m2_s4(params: AccelSettings, lowpassed_m_s2: np.ndarray | None) -> float:
@@ -51,6 +59,30 @@ def excess_norm_sq_m2_s4(params: AccelSettings, lowpassed_m_s2: np.ndarray | Non
     if lowpassed_m_s2 is None:
         return 0.0
     return float(lowpassed_m_s2 @ lowpassed_m_s2) - params.gravity_m_s2**2
+
+
+def unaided_target(params: AccelSettings, gravity: GravityState, interval_s: float, tau_s: float) -> tuple[float, float]:
+    """What the excess follows this tick without GNSS aiding, and with which time constant: the low-passed
+    reading's with the tilt time constant ``tau_s`` while the plain gravity update uses the low-pass; while it uses
+    raw readings (its fast start, again after a gyro gap or saturation broke the strapdown frame) their mean's at
+    once: the estimate follows them within ticks, in a turn straight to the bank's tilt (:mod:`fuser.model.gravity`)."""
+    if gravity.accel_lp_m_s2 is None:
+        return excess_norm_sq_m2_s4(params, gravity.raw_mean_m_s2), interval_s
+    return excess_norm_sq_m2_s4(params, gravity.accel_lp_m_s2), tau_s
+
+
+def corrected(params: AccelSettings, excess_m2_s4: float, prior_tilt_deg: float, sigma_deg: float) -> float:
+    """The excess after a GNSS-aided gravity reading is fused: the tilt it stood for shrinks as the estimate is
+    corrected, by the reading's gain ``k = p / (p + sigma^2)`` per axis (``p`` the prior's per-axis tilt variance,
+    half ``prior_tilt_deg`` squared; the Bingham product moves the mode by that share of the innovation, QBF paper,
+    sec. 5), not faster: after a turn flown unaided the aided readings need seconds to pull the tilt back, and the
+    estimate is as far off meanwhile as it was."""
+    tilt_rad = _unseen_tilt_rad(params, excess_m2_s4)
+    if tilt_rad == 0.0:
+        return min(excess_m2_s4, _allowed_m2_s4(params))
+    prior = 0.5 * math.radians(prior_tilt_deg) ** 2
+    gain = prior / (prior + math.radians(sigma_deg) ** 2) if prior > 0.0 else 0.0
+    return _allowed_m2_s4(params) + (params.gravity_m_s2 * math.tan((1.0 - gain) * tilt_rad)) ** 2
 
 
 def followed(params: AccelSettings, excess_m2_s4: float, target_m2_s4: float, interval_s: float, tau_s: float) -> float:
@@ -66,16 +98,20 @@ def _allowed_m2_s4(params: AccelSettings) -> float:
     return ((1.0 + params.unaided_norm_tolerance_fraction) ** 2 - 1.0) * params.gravity_m_s2**2
 
 
+def _unseen_tilt_rad(params: AccelSettings, excess_m2_s4: float) -> float:
+    """The tilt the excess, read as a horizontal acceleration beyond the tolerance, makes: ``atan(|a_h| / g)``."""
+    horizontal_sq_m2_s4 = excess_m2_s4 - _allowed_m2_s4(params)
+    return math.atan2(math.sqrt(horizontal_sq_m2_s4), params.gravity_m_s2) if horizontal_sq_m2_s4 > 0.0 else 0.0
+
+
 def unseen_variances_rad2(params: AccelSettings, excess_m2_s4: float,
                           field_ned_gauss: tuple[float, float, float] | None) -> tuple[float, float]:
     """(tilt, heading) variances, rad^2 per axis, of the down the followed excess, read as a horizontal
     acceleration beyond the tolerance, biases; the heading's through the field's inclination, ``tan(I)^2 / 2``
     times the tilt's (``field_ned_gauss`` None: no magnetometer heading, none)."""
-    g = params.gravity_m_s2
-    horizontal_sq_m2_s4 = excess_m2_s4 - _allowed_m2_s4(params)
-    if horizontal_sq_m2_s4 <= 0.0:
+    tilt_rad2 = _unseen_tilt_rad(params, excess_m2_s4) ** 2
+    if tilt_rad2 == 0.0:
         return 0.0, 0.0
-    tilt_rad2 = math.atan2(math.sqrt(horizontal_sq_m2_s4), g) ** 2
     if field_ned_gauss is None:
         return tilt_rad2, 0.0
     north, east, down = field_ned_gauss
