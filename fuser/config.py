@@ -287,7 +287,17 @@ class AccelSettings(Settings):
     """Local gravity: the norm the gate expects."""
     unaided_norm_tolerance_fraction: Annotated[float, Range(ge=0)] = 0.03
     """Without GNSS velocity, the low-passed specific force's norm beyond ``g (1 + this)`` is read as a horizontal
-    acceleration the filter cannot see, and the published tilt widened by its angle (:mod:`fuser.model.unaided`)."""
+    acceleration the filter cannot see, and the published tilt widened by its angle (:mod:`fuser.model.unaided`),
+    until the sensor's own norm is learnt."""
+    unaided_learnt_tolerance_fraction: Annotated[float, Range(ge=0)] = 0.005
+    """Once it is: beyond the learnt norm times ``1 + this`` (its change with the orientation, from the axes'
+    different scale errors, and with temperature)."""
+    unaided_norm_window_s: Seconds = 60.0
+    """The sensor's norm is learnt as the norm of the specific force's mean in the strapdown frame over this long
+    (a growing window until then): the vehicle's acceleration averages out of it, as its velocity is bounded."""
+    unaided_speed_change_m_s: Annotated[float, Range(ge=0, unit="m/s")] = 1.0
+    """Vertical speed the vehicle may have gained over that window: its mean acceleration ``dv / T`` biases the
+    learnt ``|f|^2`` by up to ``2 g dv / T``, which the tolerance keeps until the window is long enough."""
 
 
 @dataclass(frozen=True)

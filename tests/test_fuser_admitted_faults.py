@@ -56,7 +56,7 @@ def test_after_it_the_published_uncertainty_still_covers_the_error(run):
     """After the fault the error stays within twice the reported uncertainty. In the banked turn (seed 0) the
     restarted gravity update's raw readings point 15 deg off and the first GNSS-aided readings need 3 s to pull
     the estimate back: before the unseen tilt was kept through them (fuser/model/unaided.py) the estimate was
-    15 deg off reporting 5 for 2.6 s. Not met on seeds 2 and 3 (benchmarks/RESULTS.md, "Faults")."""
+    15 deg off reporting 5 for 2.6 s (seeds 0-3, with and without GNSS: benchmarks/faults.py)."""
     _, r = run
     after = r.window(r.end_s, r.scored_until_s)
     assert np.all(r.error_deg[after] <= 2.0 * r.uncertainty_deg[after]), r.summary()

@@ -7,6 +7,7 @@ the followed (signed) excess while a turn's stays; the heading's share follows t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -15,9 +16,9 @@ import pytest
 from core import quaternion as quat
 from fuser.config import AccelSettings, UpdateSettings
 from fuser.model.gravity import turn_frame, update_gravity
-from fuser.model.state import GravityState
+from fuser.model.state import GravityState, UnaidedState
 from fuser.model.tick import TickContext
-from fuser.model.unaided import corrected, excess_norm_sq_m2_s4, followed, unaided_target, unseen_variances_rad2
+from fuser.model.unaided import cleared, corrected, excess_norm_sq_m2_s4, followed, learn_norm, unaided_target, unseen_variances_rad2
 
 G = 9.80665
 
@@ -27,8 +28,13 @@ def _turn_specific_force(bank_deg: float) -> np.ndarray:
     return np.array([0.0, G * math.tan(math.radians(bank_deg)), -G])
 
 
+def _u(excess_m2_s4: float) -> UnaidedState:
+    """An excess with no learnt norm (the tolerance alone)."""
+    return UnaidedState(excess_m2_s4=excess_m2_s4)
+
+
 def _unseen_tilt_deg(params: AccelSettings, f: np.ndarray, field=None) -> float:
-    return math.degrees(math.sqrt(unseen_variances_rad2(params, excess_norm_sq_m2_s4(params, f), field)[0]))
+    return math.degrees(math.sqrt(unseen_variances_rad2(params, _u(excess_norm_sq_m2_s4(params, f)), field)[0]))
 
 
 @pytest.mark.parametrize("bank_deg", [5.0, 20.0, 30.0, 45.0, 60.0])
@@ -55,7 +61,7 @@ def test_the_tolerance_hides_shallow_turns_and_trims_steep_ones():
 
 def test_a_vertical_acceleration_that_comes_and_goes_averages_out_and_a_turn_stays():
     params, tau, dt = AccelSettings(), 3.0, 0.01
-    bobbing = turning = 0.0
+    bobbing = turning = _u(0.0)
     for k in range(3000):  # 30 s: +-1.5 m/s^2 up and down at 0.5 Hz, against a steady 30 deg turn
         a_up = 1.5 * math.sin(2 * math.pi * 0.5 * k * dt)
         bobbing = followed(params, bobbing, excess_norm_sq_m2_s4(params, np.array([0.0, 0.0, -G - a_up])), dt, tau)
@@ -68,20 +74,20 @@ def test_a_vertical_acceleration_that_comes_and_goes_averages_out_and_a_turn_sta
 
 def test_the_excess_is_followed_with_a_first_order_lag_and_a_floor():
     params, tau, dt, target = AccelSettings(), 3.0, 0.01, 25.0
-    v = 0.0
+    v = _u(0.0)
     for _ in range(300):
         v = followed(params, v, target, dt, tau)
-    assert v == pytest.approx(target * (1 - (1 - dt / tau) ** 300), rel=1e-12)
-    assert followed(params, v, target, 10.0, tau) == target  # an interval longer than tau lands on the target
+    assert v.excess_m2_s4 == pytest.approx(target * (1 - (1 - dt / tau) ** 300), rel=1e-12)
+    assert followed(params, v, target, 10.0, tau).excess_m2_s4 == target  # an interval longer than tau lands on the target
     # a norm persistently low sits at minus the tolerance's excess, not below: a turn after it shows within ~tau
     allowed = (1.03**2 - 1.0) * G * G
-    low = followed(params, 0.0, -50.0, 10.0, tau)
-    assert low == pytest.approx(-allowed)
+    low = followed(params, _u(0.0), -50.0, 10.0, tau)
+    assert low.excess_m2_s4 == pytest.approx(-allowed)
 
 
 def test_the_heading_share_follows_the_inclination():
     params = AccelSettings(unaided_norm_tolerance_fraction=0.0)
-    excess = (G * math.tan(math.radians(10.0))) ** 2  # a 10 deg turn
+    excess = _u((G * math.tan(math.radians(10.0))) ** 2)  # a 10 deg turn
     tilt = math.radians(10.0) ** 2
     assert unseen_variances_rad2(params, excess, (0.2, 0.0, 0.4)) == pytest.approx((tilt, 2.0 * tilt))  # tan I = 2: 4 / 2
     assert unseen_variances_rad2(params, excess, (0.15, 0.15, 0.0)) == pytest.approx((tilt, 0.0))  # horizontal field
@@ -98,17 +104,21 @@ def _excess_for_unseen_tilt(params: AccelSettings, tilt_deg: float) -> float:
 def test_an_aided_reading_shrinks_the_unseen_tilt_by_its_own_gain():
     """After a turn flown unaided, a GNSS-aided reading corrects the estimate by its gain ``k = p / (p + s^2)``
     per axis (prior tilt 10 deg RMS over two axes: ``p`` = 50 deg^2; sigma 5 deg: ``k`` = 2/3), so a 30-deg unseen
-    tilt is 10 deg after it, and 10 / 3 after a second; a prior sure of itself (sigma huge) corrects nothing."""
+    tilt is 10 deg after it, and 10 / 3 after a second; a prior sure of itself (sigma huge) corrects nothing; and never more
+    than the reading's innovation and noise allow."""
     params = AccelSettings()
-    excess = _excess_for_unseen_tilt(params, 30.0)
+    excess = _u(_excess_for_unseen_tilt(params, 30.0))
     assert math.degrees(math.sqrt(unseen_variances_rad2(params, excess, None)[0])) == pytest.approx(30.0, abs=1e-9)
-    once = corrected(params, excess, 10.0, 5.0)
+    once = corrected(params, excess, 10.0, 5.0, math.pi)
     assert math.degrees(math.sqrt(unseen_variances_rad2(params, once, None)[0])) == pytest.approx(10.0, abs=1e-9)
-    twice = corrected(params, once, 10.0, 5.0)
+    twice = corrected(params, once, 10.0, 5.0, math.pi)
     assert math.degrees(math.sqrt(unseen_variances_rad2(params, twice, None)[0])) == pytest.approx(10.0 / 3.0, abs=1e-9)
-    assert corrected(params, excess, 10.0, 1e6) == pytest.approx(excess, rel=1e-6)
+    # an aided reading whose innovation and noise allow 4 deg at most: what the excess stood for was no tilt
+    bounded = corrected(params, excess, 10.0, 5.0, math.radians(4.0))
+    assert math.degrees(math.sqrt(unseen_variances_rad2(params, bounded, None)[0])) == pytest.approx(4.0, abs=1e-9)
+    assert corrected(params, excess, 10.0, 1e6, math.pi).excess_m2_s4 == pytest.approx(excess.excess_m2_s4, rel=1e-6)
     # an excess within the tolerance stays unseen (at most the tolerance's, never negative growth)
-    assert unseen_variances_rad2(params, corrected(params, -1.0, 10.0, 5.0), None) == (0.0, 0.0)
+    assert unseen_variances_rad2(params, corrected(params, _u(-1.0), 10.0, 5.0, math.pi), None) == (0.0, 0.0)
 
 
 def _gravity_tick(state: GravityState, f_body: np.ndarray, prior_doubt_deg: float, interval_s: float = 0.01):
@@ -129,7 +139,7 @@ def test_raw_readings_are_followed_at_once_and_the_low_pass_starts_from_their_me
     np.testing.assert_allclose(second.raw_mean_m_s2, 0.25 * f1 + 0.75 * f2, atol=1e-12)
     target, follow_s = unaided_target(params, first, 0.01, 3.0)
     assert follow_s == 0.01
-    assert math.degrees(math.sqrt(unseen_variances_rad2(params, followed(params, 0.0, target, 0.01, follow_s), None)[0])) == \
+    assert math.degrees(math.sqrt(unseen_variances_rad2(params, followed(params, _u(0.0), target, 0.01, follow_s), None)[0])) == \
         pytest.approx(30.0, abs=1e-9)
     converged = _gravity_tick(second, f1, 1.0, 0.01).state  # alpha = 0.01 / 3
     np.testing.assert_allclose(converged.accel_lp_m_s2, second.raw_mean_m_s2 + (0.01 / 3.0) * (f1 - second.raw_mean_m_s2), atol=1e-12)
@@ -139,3 +149,49 @@ def test_raw_readings_are_followed_at_once_and_the_low_pass_starts_from_their_me
     assert broken.raw_mean_m_s2 is None and broken.raw_s == 0.0 and not broken.converged
     kept = turn_frame(second, None, 0.0)
     np.testing.assert_array_equal(kept.raw_mean_m_s2, second.raw_mean_m_s2)
+
+
+def test_the_sensors_own_norm_is_learnt_and_a_turn_is_seen_beyond_it():
+    """A sensor reading 1 % high (``|f| = 1.01 g`` at rest) is within the 3 % tolerance of an unlearnt norm, which
+    hides a 10-deg turn. After 60 s its norm is learnt as the norm of the mean specific force (hand-computed:
+    the mean of a constant is itself, and of a turn flown in a full circle the gravity alone), and beyond it only
+    the learnt tolerance stays: ``((1.005)^2 - 1) g^2 + 2 g dv / T`` (0.5 %, 1 m/s over 60 s), hand-computed."""
+    params = AccelSettings()
+    scale = 1.01
+    gravity = GravityState()  # identity strapdown frame: body = S
+    at_rest = np.array([0.0, 0.0, -scale * G])
+    state = UnaidedState()
+    for _ in range(6000):
+        state = learn_norm(params, state, gravity, at_rest, 0.01, False)
+    np.testing.assert_allclose(state.norm_mean_m_s2, at_rest, rtol=1e-12)
+    assert state.norm_mean_s == pytest.approx(60.0)
+    # a turn banked 10 deg, its norm seen by the same sensor: beyond the learnt norm by (scale g)^2 tan^2(10 deg)
+    turn = scale * _turn_specific_force(10.0)
+    excess = excess_norm_sq_m2_s4(params, turn)
+    allowed = (1.005**2 - 1.0) * G**2 + 2.0 * G * 1.0 / 60.0
+    hidden = (scale * G * math.tan(math.radians(10.0))) ** 2 - allowed
+    learnt = dataclasses.replace(state, excess_m2_s4=excess)
+    expected = math.degrees(math.atan2(math.sqrt(hidden), G))
+    assert math.degrees(math.sqrt(unseen_variances_rad2(params, learnt, None)[0])) == pytest.approx(expected, abs=1e-9)
+    assert 7.5 < expected < 8.0  # 7.7 deg of the 10 seen
+    assert unseen_variances_rad2(params, _u(excess), None) == (0.0, 0.0)  # unlearnt: within 3 %, unseen
+    # the autopilot's attitude fused: nothing unseen; a broken frame keeps the learnt norm, along the last down
+    assert unseen_variances_rad2(params, cleared(params, learnt), None) == (0.0, 0.0)
+    tilted = GravityState(down_body=np.array([0.0, math.sin(0.3), math.cos(0.3)]))
+    kept = learn_norm(params, state, tilted, turn, 0.01, True)
+    np.testing.assert_allclose(kept.norm_mean_m_s2, -scale * G * tilted.down_body, rtol=1e-12)
+    assert kept.norm_mean_s == state.norm_mean_s
+
+
+def test_the_learnt_norm_is_a_mean_in_the_strapdown_frame():
+    """A circle flown at constant speed: the centripetal acceleration turns with the flight and averages out of
+    the strapdown-frame mean over whole circles, leaving gravity's norm; the mean of the norms would not."""
+    params = AccelSettings()
+    gravity, state, dt = GravityState(), UnaidedState(), 0.01
+    a, omega = 3.0, 2.0 * math.pi / 10.0  # 3 m/s^2, one circle per 10 s; six circles
+    for k in range(6000):
+        heading = omega * k * dt
+        f = np.array([a * math.cos(heading), a * math.sin(heading), -G])
+        state = learn_norm(params, state, gravity, f, dt, False)
+    assert np.linalg.norm(state.norm_mean_m_s2) == pytest.approx(G, rel=2e-3)
+    assert math.hypot(a, G) > 1.04 * G

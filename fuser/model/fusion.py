@@ -55,7 +55,7 @@ from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
 from fuser.model.state import FilterState, GyroState, HeadingState, RestState, initial_state
 from fuser.model.tick import TickContext, TickInput, TickResult
-from fuser.model.unaided import corrected, followed, unaided_target, unseen_variances_rad2
+from fuser.model.unaided import cleared, corrected, followed, learn_norm, unaided_target, unseen_variances_rad2
 from fuser.model.velocity import tilt_doubt_deg, track_velocity, update_gravity_aided
 
 __all__ = ["FusionModel"]
@@ -134,7 +134,8 @@ class FusionModel:
         else:
             rate = prediction.rate_rad_s
             error_state = model_error.observe_rate(s.model_error, rate, dt, cfg.accel.lowpass_s)
-        gravity = turn_frame(s.gravity, prediction.rotation, motion.gap_s + motion.saturated_s)
+        unknown_rotation_s = motion.gap_s + motion.saturated_s  # of the tick without a usable rate: the strapdown frame breaks
+        gravity = turn_frame(s.gravity, prediction.rotation, unknown_rotation_s)
         context = TickContext(dt, prediction.variance_rad2, rms_angle_deg(prediction.attitude, self.method))
         predicted_q = prediction.attitude.mode
         raw_rate = motion.raw_rate_rad_s
@@ -143,14 +144,14 @@ class FusionModel:
         # 2. updates, gated against the prediction; their exponents add up to one product
         belief, exponent = prediction.attitude, np.zeros((4, 4))
         diagnostics: list[UpdateDiagnostic] = []
-        rest, heading, accel_trusted, excess = s.rest, s.heading, False, s.unaided_excess_m2_s4
+        rest, heading, accel_trusted, unaided = s.rest, s.heading, False, s.unaided
         interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
         if field_diagnostic is not None:
             diagnostics.append(field_diagnostic)
         accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags_s(imu_placed, tick.t_ns), body_rate) if imu else None
         tau = tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2)
         velocity = track_velocity(cfg.gnss, cfg.accel, cfg.updates, s.velocity, gnss, gravity, accel, tick.t_ns, tick.dt_ns,
-                                  prediction.attitude, context.prior_doubt_deg, tau, motion.gap_s + motion.saturated_s > 0.0, self.method)
+                                  prediction.attitude, context.prior_doubt_deg, tau, unknown_rotation_s > 0.0, self.method)
         diagnostics += velocity.diagnostics
         events += velocity.events
         if accel is not None:
@@ -165,11 +166,13 @@ class FusionModel:
                 reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval)
             gravity, accel_trusted = reading.state, reading.trusted
             # an acceleration the unaided accelerometer cannot tell from gravity, as far as the estimate follows it
+            unaided = learn_norm(cfg.accel, unaided, gravity, accel, interval, unknown_rotation_s > 0.0)
             if not velocity.active:
                 target, follow_s = unaided_target(cfg.accel, gravity, interval, tau)
-                excess = followed(cfg.accel, excess, target, interval, follow_s)
-            elif reading.exponent is not None and reading.diagnostic is not None and reading.diagnostic.sigma_deg is not None:
-                excess = corrected(cfg.accel, excess, tilt_doubt_deg(prediction.attitude, self.method), reading.diagnostic.sigma_deg)
+                unaided = followed(cfg.accel, unaided, target, interval, follow_s)
+            elif reading.tilt_bound_rad is not None and reading.diagnostic is not None and reading.diagnostic.sigma_deg is not None:
+                unaided = corrected(cfg.accel, unaided, tilt_doubt_deg(prediction.attitude, self.method), reading.diagnostic.sigma_deg,
+                                    reading.tilt_bound_rad)
             if reading.diagnostic is not None:
                 diagnostics.append(reading.diagnostic)
             if reading.exponent is not None:
@@ -196,7 +199,7 @@ class FusionModel:
                 exponent = exponent + e
             diagnostics += a.diagnostics
             if a.exponents:  # the autopilot's down, fused: what the accelerometer could not see is its estimator's
-                excess = 0.0
+                unaided = cleared(cfg.accel, unaided)
         elif attitudes:
             events += ["attitude_unused"] * len(attitudes)
         posterior = _multiplied(belief, exponent)
@@ -210,12 +213,12 @@ class FusionModel:
         # 4. publish: widened by the model error, the error of a rate held since the last sample, an IMU kept out and,
         # without GNSS aiding, the acceleration the accelerometer's norm reveals
         widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
-        unseen_rad2 = unseen_variances_rad2(cfg.accel, excess, field.field_ned_gauss if cfg.mag.enabled else None)
+        unseen_rad2 = unseen_variances_rad2(cfg.accel, unaided, field.field_ned_gauss if cfg.mag.enabled else None)
         published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening, unseen_rad2)
 
         self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
                                   rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
-                                  model_error=error_state, velocity=velocity.state, field=field, unaided_excess_m2_s4=excess)
+                                  model_error=error_state, velocity=velocity.state, field=field, unaided=unaided)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
         return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))

@@ -63,6 +63,9 @@ class GravityReading:
     """The accelerometer was converged and well inside its norm gate: the bias feedback may learn this tick."""
     diagnostic: UpdateDiagnostic | None
     """None: no reading this tick (GNSS-aided, between two fixes)."""
+    tilt_bound_rad: float | None = None
+    """A GNSS-aided reading's bound on the prediction's tilt error: its innovation plus twice its noise (the GNSS
+    velocity's, differenced and low-passed; not the correction-time sigma). None for the plain update."""
 
 
 def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -> GravityState:

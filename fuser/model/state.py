@@ -105,6 +105,19 @@ class GravityState:
 
 
 @dataclass(frozen=True, slots=True)
+class UnaidedState:
+    """What the accelerometer's norm reveals of an acceleration it cannot tell from gravity (:mod:`fuser.model.unaided`)."""
+
+    excess_m2_s4: float = 0.0
+    """The low-passed specific force's signed excess norm ``|f|^2 - g^2``, as far as the estimate has followed it."""
+    norm_mean_m_s2: np.ndarray | None = None
+    """Long-run mean of the specific force in the strapdown frame: gravity as this sensor reads it, its scale error
+    and bias included (None: none yet, or the frame broke)."""
+    norm_mean_s: float = 0.0
+    """Seconds of readings in that mean."""
+
+
+@dataclass(frozen=True, slots=True)
 class HeadingState:
     gated_s: float = 0.0
     """Seconds of continuous gating by innovation."""
@@ -206,9 +219,8 @@ class FilterState:
     velocity: VelocityState = VelocityState()
     field: FieldState = FieldState.of(MagSettings())
     """The reference field (the default settings' until :func:`initial_state` gives the configured one)."""
-    unaided_excess_m2_s4: float = 0.0
-    """The low-passed specific force's signed excess norm ``|f|^2 - g^2``, as far as the estimate has followed it:
-    an acceleration the unaided accelerometer cannot tell from gravity (:mod:`fuser.model.unaided`)."""
+    unaided: UnaidedState = UnaidedState()
+    """An acceleration the unaided accelerometer cannot tell from gravity (:mod:`fuser.model.unaided`)."""
 
 
 def initial_state(config: FuserConfig) -> FilterState:

@@ -335,4 +335,4 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     after = GravityState(state.q_strapdown, None, held.down_body, True, True, verdict.gated_s)
     if verdict.outcome == "gated":
         return GravityReading(after, None, False, False, diagnostic)
-    return GravityReading(after, vector_exponent(body, world, sigma), False, trusted, diagnostic)
+    return GravityReading(after, vector_exponent(body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
