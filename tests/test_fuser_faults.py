@@ -38,7 +38,6 @@ from test_fuser_e2e import (
     sender_start,
     sleep_until,
     stop_all,
-    wait_for,
     wait_listening,
 )
 
@@ -106,7 +105,6 @@ def test_link_outage_garbage_subscriber_restart_and_recorder_kill(tmp_path: Path
 
         sleep_until(start_at + SUBSCRIBER_RESTART_AT_S)
         first.kill()
-        restarted_at = time.time()
         second = Proc(FUSER + ["listen", "--json", "--vehicle", vehicle, "--zenoh-connect", endpoint])
 
         sleep_until(start_at + RECORDER_KILL_AT_S)

@@ -6,9 +6,6 @@ against the simulator's truth (independent of the filter); once that holds,
 those recorded estimates are the golden file a replay must reproduce.
 """
 
-import math
-import os
-import shutil
 import struct
 from pathlib import Path
 
