@@ -432,6 +432,10 @@ class GnssSettings(Settings):
     filtered_latency_ms: Annotated[float, Range(ge=0, le=1000, unit="ms")] = 0.0
     """The same for an autopilot's navigation solution (GLOBAL_POSITION_INT): its EKF's output is
     predicted to the time it is sent."""
+    raw_lowpass_s: Seconds = 0.3
+    """The acceleration the gravity update's raw readings take out (its fast start, :mod:`fuser.model.gravity`):
+    the pairs of fixes low-passed with this time constant, their differenced noise down by about 2.5 at 10 Hz;
+    a turn's acceleration turns meanwhile by its rate times this, 2 deg at 0.1 rad/s."""
     max_age_s: Annotated[float, Range(gt=0, le=10, unit="s")] = 1.0
     """Two fixes further apart than this are not differenced (the acceleration between them is too smeared),
     and the aiding stops once the latest fix is this old (the gravity update falls back to the

@@ -18,6 +18,8 @@ upper bound is a strict xfail until they change.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -34,15 +36,16 @@ from drivers import jsbsim_flight  # noqa: E402
 FLIGHTS = {
     "multirotor": lambda: simulate(SimConfig(seed=0, duration_s=30.0, imu_rate_hz=200.0)),
     "aggressive": lambda: scenario("aggressive", seed=0, imu_rate_hz=200.0),
-    "fixedwing": lambda: jsbsim_flight.simulate_fixed_wing(jsbsim_flight.fixed_wing_config(seed=0, imu_rate_hz=200.0, duration_s=60.0)),
+    "fixedwing": functools.cache(lambda: jsbsim_flight.simulate_fixed_wing(jsbsim_flight.fixed_wing_config(seed=0, imu_rate_hz=200.0,
+                                                                                                         duration_s=60.0))),
 }
 TOTAL_BOUND_DEG = {"multirotor": 3.0, "aggressive": 4.0, "fixedwing": 3.0}
 TILT_BOUND_DEG = {"fixedwing": 2.0}
 
 
-def _fly(flight, config: FuserConfig):
+def _fly(flight, config: FuserConfig, after_s: float = 5.0, counters: dict | None = None):
     """The flight's MAVLink bytes through the decoder and the loop, received 1 ms after sending; the errors after
-    5 s and the credible level of the truth at each of those estimates."""
+    ``after_s`` and the credible level of the truth at each of those estimates (the loop's counters into ``counters``)."""
     loop = FusionLoop(config)
     estimates = []
     for t, _, samples in sim_ticks(flight):
@@ -54,10 +57,12 @@ def _fly(flight, config: FuserConfig):
     err = attitude_errors(np.array([e.sensor_t_ns for e in est]), np.array([e.q_wxyz for e in est]),
                           np.array([e.uncertainty_deg for e in est]), flight.t_ns, flight.q_true)
     inside = np.isin(np.array([e.sensor_t_ns for e in est]), err.t_ns)
-    after = (err.t_ns - err.t_ns[0]) >= 5e9
+    after = (err.t_ns - err.t_ns[0]) >= after_s * 1e9
     M = np.array([e.M for e in est])[inside][after]
     Z = np.array([e.Z for e in est])[inside][after]
-    return err.rms(5.0), credible_level(M, Z, err.q_ref[after])
+    if counters is not None:
+        counters.update(loop.counters | loop.model.counters)
+    return err.rms(after_s) | {"max": float(err.total_deg[after].max())}, credible_level(M, Z, err.q_ref[after])
 
 
 @pytest.fixture(scope="module", params=sorted(FLIGHTS))
@@ -104,3 +109,19 @@ def test_without_gnss_the_unseen_turn_widens_the_uncertainty(flown):
 def test_with_aiding_the_reported_uncertainty_is_calibrated(flown):
     _, (_, level), _ = flown
     assert np.mean(level <= 0.9) <= 0.95, np.mean(level <= 0.9)
+
+
+def test_a_start_in_a_sustained_turn_finds_the_attitude_within_a_second():
+    """Started 28 s into the JSBSim flight, in its sustained 30-deg turn (a ground station connecting mid-flight): the
+    first raw readings are the lift's direction, the bank's vertical. The first pair of GNSS fixes shows it (the raw
+    reading with the turn's acceleration taken out disagrees beyond the gate), the fast start runs again with the
+    acceleration taken out and the whole field as a vector (fuser/model/gravity.py, heading.py). Measured: 4.3 deg RMS
+    over the next 4 s after the first second (largest 5.4), the truth inside the 90 % region throughout; before,
+    30-60 deg off in tilt and 100-175 deg in heading for 15 s while reporting 5-6 deg. The truth is JSBSim's."""
+    flight = FLIGHTS["fixedwing"]()
+    start = int(np.searchsorted(flight.t_ns, flight.t_ns[0] + 28e9))
+    counters: dict = {}
+    rms, level = _fly(flight.cut(start, len(flight.t_ns)), FuserConfig(), after_s=1.0, counters=counters)
+    assert counters.get("gnss_restart", 0) >= 1, counters
+    assert rms["max"] < 8.0 and rms["total"] < 5.0, rms
+    assert np.mean(level <= 0.9) >= 0.85, np.mean(level <= 0.9)

@@ -25,6 +25,7 @@ uncertainty growing, until the source agrees again.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Sequence
@@ -98,4 +99,4 @@ def update_attitude(params: AttitudeSettings, updates: UpdateSettings, state: At
         gated_s += tick.dt_s
     elif diagnostics:
         gated_s = 0.0
-    return AttitudeReading(AttitudeState(gated_s), tuple(exponents), tuple(diagnostics))
+    return AttitudeReading(dataclasses.replace(state, gated_s=gated_s), tuple(exponents), tuple(diagnostics))

@@ -56,10 +56,14 @@ from fuser.model.rest import detect_rest, measure_bias
 from fuser.model.state import FilterState, GyroState, HeadingState, RestState, initial_state
 from fuser.model.tick import TickContext, TickInput, TickResult
 from fuser.model.unaided import cleared, corrected, followed, learn_norm, unaided_target, unseen_variances_rad2
-from fuser.model.velocity import tilt_doubt_deg, track_velocity, update_gravity_aided
+from fuser.model.velocity import raw_world, tilt_doubt_deg, track_velocity, update_gravity_aided
 
 __all__ = ["FusionModel"]
 
+
+_RESTART_RAD2 = math.radians(60.0) ** 2
+"""Per-axis variance added to the state when the fast start runs again: wide enough for its raw readings and
+fast-start headings to take it (unconverged, ``updates.converged_deg``), as at a cold start."""
 
 _field_reference = lru_cache(maxsize=8)(FieldReference.of)
 """The heading update's coefficients of a reference field (computed once per field)."""
@@ -163,7 +167,13 @@ class FusionModel:
             if velocity.active:
                 reading = update_gravity_aided(cfg.accel, cfg.gnss, cfg.updates, gravity, velocity, context, tau, predicted_q)
             else:
-                reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval)
+                gnss_world = raw_world(cfg.gnss, cfg.accel, velocity.state, tick.t_ns)
+                checked = gnss_world is None or gravity.gnss_checked
+                reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval, gnss_world,
+                                         0.0 if checked else tilt_doubt_deg(prediction.attitude, self.method))
+                if reading.restart:  # the fast start again: the state forgets the tilt and heading it was sure of
+                    belief = model_error.with_model_error(belief, _RESTART_RAD2, _RESTART_RAD2)
+                    events.append("gnss_restart")
             gravity, accel_trusted = reading.state, reading.trusted
             # an acceleration the unaided accelerometer cannot tell from gravity, as far as the estimate follows it
             unaided = learn_norm(cfg.accel, unaided, gravity, accel, interval, unknown_rotation_s > 0.0)
@@ -198,10 +208,13 @@ class FusionModel:
             for e in a.exponents:
                 exponent = exponent + e
             diagnostics += a.diagnostics
-            if a.exponents:  # the autopilot's down, fused: what the accelerometer could not see is its estimator's
-                unaided = cleared(cfg.accel, unaided)
+            if a.exponents:
+                attitude_source = dataclasses.replace(attitude_source, last_fused_ns=tick.t_ns)
         elif attitudes:
             events += ["attitude_unused"] * len(attitudes)
+        if attitude_source.last_fused_ns is not None and tick.t_ns - attitude_source.last_fused_ns <= cfg.accel.lowpass_s * 1e9:
+            # the autopilot's down, fused within the tilt time constant: what the accelerometer could not see is its estimator's
+            unaided = cleared(cfg.accel, unaided)
         posterior = _multiplied(belief, exponent)
 
         # 3. bias feedback from the tick's correction

@@ -23,6 +23,15 @@ which the unaided widening (:mod:`fuser.model.unaided`) reads; from the
 filter's own estimate of down when there were none (the GNSS-aided update ran
 before, or nothing was fused yet).
 
+While GNSS fixes come, a raw reading measures ``g e_z - a`` instead of down,
+``a`` the pairs of fixes' acceleration low-passed (:func:`fuser.model.velocity.raw_world`),
+its noise in the reading's sigma: in a turn the raw reading is the lift's
+direction, not gravity's. The first such reading is checked against the state
+built before it, from readings all taken for down: beyond the gate (a start in
+a turn, the bank's vertical) the fast start runs again (``restart``: the
+state's tilt and heading widened, unconverged, the magnetometer a whole vector,
+:mod:`fuser.model.heading`).
+
 While GNSS velocity aids it, the velocity-aided variant beside this one
 (:func:`fuser.model.velocity.update_gravity_aided`: the world acceleration
 from GNSS velocity taken out of the specific force, both low-passed alike)
@@ -31,8 +40,10 @@ gives the :class:`GravityReading` instead.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -44,10 +55,19 @@ from fuser.model.gate import innovation_gate
 from fuser.model.state import GravityState
 from fuser.model.tick import TickContext
 
-__all__ = ["DOWN_NED", "GravityReading", "tilt_time_constant_s", "turn_frame", "update_gravity"]
+__all__ = ["DOWN_NED", "GnssWorld", "GravityReading", "tilt_time_constant_s", "turn_frame", "update_gravity"]
 
 DOWN_NED = np.array([0.0, 0.0, 1.0])
 """World down in NED: the reference direction of the gravity measurement (a frame convention, not a tuning)."""
+
+
+class GnssWorld(NamedTuple):
+    """What a raw reading measures in the world while GNSS fixes come (:func:`fuser.model.velocity.raw_world`)."""
+
+    vector_m_s2: np.ndarray
+    """``g e_z - a`` (NED), ``a`` the vehicle's acceleration from GNSS velocity."""
+    noise_m_s2: float
+    """One-sigma noise per axis of ``a``."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,6 +86,8 @@ class GravityReading:
     tilt_bound_rad: float | None = None
     """A GNSS-aided reading's bound on the prediction's tilt error: its innovation plus twice its noise (the GNSS
     velocity's, differenced and low-passed; not the correction-time sigma). None for the plain update."""
+    restart: bool = False
+    """The fast start runs again: the state had converged on raw readings the GNSS acceleration shows wrong."""
 
 
 def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -> GravityState:
@@ -74,9 +96,8 @@ def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -
     update starts again as before convergence (raw readings until the state is sure again), their mean from the next."""
     q = state.q_strapdown if rotation is None else quat.normalize(quat.multiply(state.q_strapdown, rotation))
     if gap_s > 0.0:  # the raw readings' mean too, converged or not
-        return GravityState(q, None, state.down_body, False, state.tilt_known, state.gated_s)
-    return GravityState(q, state.accel_lp_m_s2, state.down_body, state.converged, state.tilt_known, state.gated_s, state.raw_mean_m_s2,
-                        state.raw_s)
+        return dataclasses.replace(state, q_strapdown=q, accel_lp_m_s2=None, converged=False, raw_mean_m_s2=None, raw_s=0.0)
+    return dataclasses.replace(state, q_strapdown=q)
 
 
 def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_variance_rad2_s2: float) -> float:
@@ -92,13 +113,26 @@ def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_varianc
 
 
 def update_gravity(params: AccelSettings, updates: UpdateSettings, state: GravityState, tick: TickContext, accel_body_m_s2: np.ndarray,
-                   tau_s: float, predicted_q: np.ndarray, interval_s: float) -> GravityReading:
+                   tau_s: float, predicted_q: np.ndarray, interval_s: float, gnss: GnssWorld | None = None,
+                   prior_tilt_deg: float = 0.0) -> GravityReading:
     """The gravity update of one tick from the tick's mean specific force in the state's body frame, the
-    readings ``interval_s`` after the previous ones."""
+    readings ``interval_s`` after the previous ones; ``gnss`` (:func:`fuser.model.velocity.raw_world`) what a raw
+    reading measures in the world while GNSS fixes come, ``g e_z - a`` (module docstring), and ``prior_tilt_deg``
+    the prediction's tilt doubt, against which the first such reading is checked."""
+    gnss_world_m_s2 = None if gnss is None else gnss.vector_m_s2
+    raw_sigma = params.sigma_rad if gnss is None else math.hypot(params.sigma_rad, gnss.noise_m_s2 / math.sqrt(float(gnss_world_m_s2 @ gnss_world_m_s2)))
     to_inertial = quat.to_matrix(state.q_strapdown)
     f_inertial = to_inertial @ accel_body_m_s2
-    converged = state.converged or tick.prior_doubt_deg < updates.converged_deg
-    predicted_down = quat.to_matrix(predicted_q)[2]  # R^T e_z: world down in the body
+    rotation = quat.to_matrix(predicted_q)  # body -> NED
+    predicted_down = rotation[2]  # R^T e_z: world down in the body
+    # once, at the first GNSS acceleration: what the state measured before it took every raw reading for down
+    restart = gnss_world_m_s2 is not None and not state.gnss_checked and state.tilt_known and _disagrees(
+        raw_sigma, updates, prior_tilt_deg, rotation @ -accel_body_m_s2, gnss_world_m_s2)
+    if restart:  # converged on raw readings the GNSS acceleration shows wrong (a start in a turn): the fast start again
+        state = dataclasses.replace(state, accel_lp_m_s2=None, converged=False, raw_mean_m_s2=None, raw_s=0.0)
+    if gnss_world_m_s2 is not None:
+        state = dataclasses.replace(state, gnss_checked=True)
+    converged = not restart and (state.converged or tick.prior_doubt_deg < updates.converged_deg)
     raw_mean, raw_s = state.raw_mean_m_s2, state.raw_s
     if not converged:
         lowpassed = None
@@ -109,29 +143,46 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
             start = to_inertial @ (-params.gravity_m_s2 * predicted_down) if raw_mean is None else raw_mean
         lowpassed = start + min(1.0, interval_s / tau_s) * (f_inertial - start)
         raw_mean, raw_s = None, 0.0
+    # a raw reading with the GNSS acceleration taken out measures g e_z - a; every other, down
+    world = DOWN_NED if lowpassed is not None or gnss_world_m_s2 is None else gnss_world_m_s2
+    world_norm = math.sqrt(float(world @ world)) if world is gnss_world_m_s2 else params.gravity_m_s2
+    world_unit = world / math.sqrt(float(world @ world))
     measured = f_inertial if lowpassed is None else lowpassed
     norm = math.sqrt(float(measured @ measured))
-    norm_error = abs(norm - params.gravity_m_s2) / params.gravity_m_s2
+    norm_error = abs(norm - world_norm) / params.gravity_m_s2
     if norm_error > params.norm_gate_fraction:
-        kept = GravityState(state.q_strapdown, lowpassed, state.down_body, converged, state.tilt_known, state.gated_s, raw_mean, raw_s)
-        return GravityReading(kept, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"))
+        kept = dataclasses.replace(state, accel_lp_m_s2=lowpassed, converged=converged, raw_mean_m_s2=raw_mean, raw_s=raw_s)
+        return GravityReading(kept, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"), restart=restart)
     filtered_body = measured @ to_inertial
     down_body = -filtered_body / norm
     if converged:  # Q = q T / dt over the interval T
         sigma = math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau_s / max(interval_s, 1e-6)
     else:
-        sigma = params.sigma_rad
-    innovation = math.acos(max(-1.0, min(1.0, float(down_body @ predicted_down))))
+        sigma = raw_sigma if world is gnss_world_m_s2 else params.sigma_rad
+    innovation = math.acos(max(-1.0, min(1.0, float((rotation @ down_body) @ world_unit))))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, tick.dt_s)
-    # nothing to gate against before the first tilt
-    outcome, gated_s = (verdict.outcome, verdict.gated_s) if state.tilt_known else ("fused", state.gated_s)
-    diagnostic = UpdateDiagnostic.of("gravity", outcome, "innovation" if outcome == "gated" else "", innovation, sigma, verdict.test_ratio)
+    # nothing to gate against before the first tilt, nor in a fast start the GNSS acceleration called for
+    outcome, gated_s = (verdict.outcome, verdict.gated_s) if state.tilt_known and not restart else ("fused", state.gated_s)
+    diagnostic = UpdateDiagnostic.of("gravity", outcome, "innovation" if outcome == "gated" else "", innovation, sigma, verdict.test_ratio,
+                                     (("aiding", "gnss_raw"),) if world is gnss_world_m_s2 else ())
     fused = outcome != "gated"
-    if fused and lowpassed is None:  # a raw reading the estimate follows, into their mean
+    if fused and lowpassed is None and world is DOWN_NED:  # a raw reading the estimate follows as down, into their mean
         raw_s = raw_s + interval_s
         raw_mean = f_inertial if raw_mean is None else raw_mean + (interval_s / raw_s) * (f_inertial - raw_mean)
-    after = GravityState(state.q_strapdown, lowpassed, down_body, converged, state.tilt_known or fused, gated_s, raw_mean, raw_s)
+    after = dataclasses.replace(state, accel_lp_m_s2=lowpassed, down_body=down_body, converged=converged, tilt_known=state.tilt_known or fused,
+                                gated_s=gated_s, raw_mean_m_s2=raw_mean, raw_s=raw_s, measured_body=down_body, measured_world=world_unit)
     if not fused:
-        return GravityReading(after, None, False, False, diagnostic)
+        return GravityReading(after, None, False, False, diagnostic, restart=restart)
     trusted = converged and norm_error < 0.5 * params.norm_gate_fraction
-    return GravityReading(after, vector_exponent(-filtered_body, DOWN_NED, sigma), not state.tilt_known, trusted, diagnostic)
+    return GravityReading(after, vector_exponent(-filtered_body, world_unit, sigma), not state.tilt_known or restart, trusted, diagnostic,
+                          restart=restart)
+
+
+def _disagrees(sigma_rad: float, updates: UpdateSettings, prior_tilt_deg: float, predicted_world: np.ndarray,
+               gnss_world_m_s2: np.ndarray) -> bool:
+    """The raw reading, seen in the world through the prediction, is further from ``g e_z - a`` than the innovation
+    gate allows a raw reading (``sigma_rad``, ``accel.sigma_rad`` with the GNSS acceleration's noise, and the state's
+    tilt doubt: its heading's does not count)."""
+    cos = float(predicted_world @ gnss_world_m_s2) / math.sqrt(float(predicted_world @ predicted_world) * float(gnss_world_m_s2 @ gnss_world_m_s2))
+    gate = updates.innovation_gate_sigma * math.hypot(sigma_rad, math.radians(prior_tilt_deg))
+    return math.acos(max(-1.0, min(1.0, cos))) > gate

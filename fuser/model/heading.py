@@ -8,6 +8,21 @@ zero concentrations for the axes a measurement does not inform), so a
 magnet near the sensor cannot tilt the estimate. Readings whose norm or dip
 (against the measured gravity) depart from the reference are gated first
 (as VQF's magnetic disturbance detection does, by norm and dip).
+
+During a fast start with GNSS (the gravity update not converged, its raw
+readings checked against the GNSS acceleration, :mod:`fuser.model.gravity`:
+after a gyro gap, or when a start in a turn runs again) the field is a whole
+vector observation instead (Davenport's K,
+:func:`core.observations.vector_exponent`, with the fast start's
+``mag.sigma_rad``): the accelerometer's reading alone leaves the rotation
+about its own direction free, and in a turn that direction is not down, so a
+yaw-only heading, which turns about down through a tilt still wrong, cannot
+fix it; two vectors do (Wahba's problem). Not at a cold start before GNSS: the
+reference field is then the configured fallback's, whose dip would pull the
+tilt (the simulated multirotor's heading 0.78 -> 1.24 deg in its first 2 s).
+Started in a 30-deg turn of the JSBSim Cessna, the estimate was 30-45 deg off
+in tilt and 100-120 deg in heading for 15 s, reporting 5; with this and the
+restart, 1.6 and 4.6 deg after 0.5 s.
 """
 
 from __future__ import annotations
@@ -18,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core import quaternion as quat
-from core.observations import heading_exponent
+from core.observations import heading_exponent, vector_exponent
 from fuser.config import BiasSettings, MagSettings, UpdateSettings
 from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model.gate import innovation_gate
@@ -33,14 +48,15 @@ class FieldReference:
     """Coefficients of the reference field, computed once from ``mag.field_ned_gauss``."""
 
     norm_gauss: float
-    dip_rad: float
+    unit_ned: np.ndarray
+    """The field's direction (NED)."""
     heading_rad: float
 
     @classmethod
     def of(cls, field_ned_gauss: tuple[float, float, float]) -> FieldReference:
         field = np.asarray(field_ned_gauss, dtype=float)
         norm = float(np.linalg.norm(field))
-        return cls(norm, math.asin(field[2] / norm), math.atan2(field[1], field[0]))
+        return cls(norm, field / norm, math.atan2(field[1], field[0]))
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,10 +96,12 @@ def update_heading(params: MagSettings, updates: UpdateSettings, reference: Fiel
     norm = math.sqrt(float(mag_body_gauss @ mag_body_gauss))
     if abs(norm - reference.norm_gauss) > params.norm_gate_fraction * reference.norm_gauss:
         return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "norm"))
-    # dip from the angle between the field and the measured gravity, both in the body frame,
-    # so that a wrong tilt estimate cannot lock the magnetometer out
-    dip = math.asin(max(-1.0, min(1.0, float(mag_body_gauss @ gravity.down_body) / norm)))
-    if abs(math.degrees(dip - reference.dip_rad)) > params.dip_gate_deg:
+    # the dip: the field's angle to the measured specific force, both in the body frame, against the reference
+    # field's to the world direction that was measured as (down, or gravity minus the GNSS acceleration): neither
+    # depends on the estimate, so that a wrong estimate cannot lock the magnetometer out
+    measured = math.acos(max(-1.0, min(1.0, float(mag_body_gauss @ gravity.measured_body) / norm)))
+    expected = math.acos(max(-1.0, min(1.0, float(reference.unit_ned @ gravity.measured_world))))
+    if abs(math.degrees(measured - expected)) > params.dip_gate_deg:
         return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "dip"))
     m_world = quat.rotate(current_q, mag_body_gauss)
     error = math.remainder(reference.heading_rad - math.atan2(m_world[1], m_world[0]), 2.0 * math.pi)
@@ -93,4 +111,6 @@ def update_heading(params: MagSettings, updates: UpdateSettings, reference: Fiel
     state = HeadingState(verdict.gated_s, state.last_reading_ns)
     if verdict.outcome == "gated":
         return HeadingReading(state, None, diagnostic)
+    if not gravity.converged and gravity.gnss_checked:  # a fast start with GNSS: the whole field as a vector (module docstring)
+        return HeadingReading(state, vector_exponent(mag_body_gauss, reference.unit_ned, sigma_rad), diagnostic)
     return HeadingReading(state, heading_exponent(current_q, error, sigma_rad), diagnostic)

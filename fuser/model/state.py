@@ -102,6 +102,15 @@ class GravityState:
     last in use or the frame broke): what the estimate has followed, and where the low-pass starts."""
     raw_s: float = 0.0
     """Seconds of raw readings in that mean."""
+    measured_body: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    """The last measured specific force's direction, negated (down at rest), in the body frame."""
+    gnss_checked: bool = False
+    """A raw reading has been compared with the first GNSS acceleration (once: the readings before it were all
+    taken for down; after a broken frame the aided update's state is the one to keep)."""
+    measured_world: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
+    """The world direction it was measured as: down without GNSS, gravity minus the GNSS acceleration with it (its
+    vertical part taken as zero when the fixes have none). With ``measured_body`` the magnetometer's dip gate
+    (:mod:`fuser.model.heading`), which neither may depend on the estimate."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -129,6 +138,8 @@ class HeadingState:
 class AttitudeState:
     gated_s: float = 0.0
     """Seconds the autopilot's attitude has been kept out as a jump."""
+    last_fused_ns: int | None = None
+    """The tick that last fused it."""
 
 
 FieldSource = Literal["config", "wmm", "fallback"]
@@ -200,6 +211,16 @@ class VelocityState:
     """Its covariance with the last fix's velocity noise (the next difference shares that fix), m^2/s^3."""
     last_fused_ns: int | None = None
     """The tick that last fused a pair into the low-pass."""
+    recent_world_m_s2: np.ndarray | None = None
+    """``g e_z - a``, ``a`` the pairs of fixes' mean acceleration (its vertical part zero when the fixes have none)
+    low-passed over ``gnss.raw_lowpass_s``, aiding or not: what the gravity update's raw readings measure in the
+    world (None: no pair yet)."""
+    recent_ns: int | None = None
+    """When the newest pair in it was measured (the middle of its interval)."""
+    recent_noise_var_m2_s4: float = 0.0
+    """Variance (per axis) of the velocity noise left in it, (m/s^2)^2."""
+    recent_noise_cov_m2_s3: float = 0.0
+    """Its covariance with the last fix's velocity noise, m^2/s^3."""
 
 
 @dataclass(frozen=True, slots=True)

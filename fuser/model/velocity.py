@@ -93,6 +93,7 @@ update takes over from the estimate, until pairs come again.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from bisect import bisect_left
 from dataclasses import dataclass
@@ -110,11 +111,11 @@ from drivers.samples import GnssSample
 from fuser.config import AccelSettings, GnssSettings, UpdateSettings
 from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model.gate import innovation_gate
-from fuser.model.gravity import DOWN_NED, GravityReading
+from fuser.model.gravity import DOWN_NED, GnssWorld, GravityReading
 from fuser.model.state import GnssStream, GravityState, VelocityState
 from fuser.model.tick import TickContext
 
-__all__ = ["VelocityTrack", "tilt_doubt_deg", "track_velocity", "update_gravity_aided"]
+__all__ = ["VelocityTrack", "raw_world", "tilt_doubt_deg", "track_velocity", "update_gravity_aided"]
 
 FIX_2D = 2
 """MAVLink GPS_FIX_TYPE of the first fix that carries a velocity."""
@@ -190,6 +191,15 @@ def _knots(params: GnssSettings, state: VelocityState, force_s_m_s2: np.ndarray 
     return knots[max(0, first - 1):] + ((tick_ns, integral + force * ((tick_ns - last_ns) * 1e-9), force),)
 
 
+def _noise_after(variance: float, covariance: float, alpha: float, span_s: float, noise_m_s: float,
+                 previous_noise_m_s: float) -> tuple[float, float]:
+    """The velocity noise in a low-pass of differenced fixes after one more: ``y = (1 - a) y + (a / T)(n1 - n0)``,
+    ``n0`` shared with the previous difference (module docstring, "Sigma"); (variance, covariance with ``n1``)."""
+    gain = alpha / span_s
+    variance = (1.0 - alpha) ** 2 * variance + gain**2 * (noise_m_s**2 + previous_noise_m_s**2) - 2.0 * (1.0 - alpha) * gain * covariance
+    return variance, gain * noise_m_s**2
+
+
 def _selected(streams: Sequence[GnssStream], now_measured_ns: int, max_age_ns: int) -> tuple | None:
     """The stream whose pairs aid: among those with a fix within ``max_age``, one with vertical velocity first,
     then a receiver's fix before an autopilot's solution, then the lowest source (a total, stable order)."""
@@ -220,6 +230,8 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
     streams = {s.key: s for s in state.streams}
     body_lp, world_lp = state.body_lp_m_s2, state.world_lp_m_s2
     vertical, noise_var, noise_cov, fused = state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3, False
+    recent_world, recent_ns = state.recent_world_m_s2, state.recent_ns
+    recent_var, recent_cov = state.recent_noise_var_m2_s4, state.recent_noise_cov_m2_s3
     if not may_aid:
         body_lp = world_lp = None
     diagnostics: list[UpdateDiagnostic] = []
@@ -235,17 +247,28 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
             continue
         noise_m_s = params.velocity_noise_m_s if fix.speed_accuracy_m_s is None else fix.speed_accuracy_m_s
         streams[key] = GnssStream(key, measured, fix.vel_ned_m_s, fix.vertical_velocity, noise_m_s)
-        start = None if previous is None or not 0 < measured - previous.measured_ns <= max_age_ns else _force_at(knots, previous.measured_ns)
-        end = None if start is None else _force_at(knots, measured)
-        if start is None or end is None or previous is None:
+        if previous is None or not 0 < measured - previous.measured_ns <= max_age_ns:
             diagnostics.append(UpdateDiagnostic.of("velocity", "gated", "gap"))
             continue
         span_s = (measured - previous.measured_ns) * 1e-9
-        force = (end - start) / span_s  # mean specific force over the GNSS interval, in S
         both_vertical = fix.vertical_velocity and previous.vertical
         accel = (np.asarray(fix.vel_ned_m_s) - np.asarray(previous.vel_ned_m_s)) / span_s
         if not both_vertical:
             accel[2] = 0.0  # unknown: left to the low-pass (module docstring)
+        # aiding or not, into what the gravity update's raw readings measure (gravity.update_gravity)
+        mid_ns = (measured + previous.measured_ns) // 2
+        if recent_world is None or recent_ns is None or mid_ns - recent_ns > max_age_ns:
+            recent_world, (recent_var, recent_cov) = g * DOWN_NED - accel, _noise_after(0.0, 0.0, 1.0, span_s, noise_m_s, previous.noise_m_s)
+        else:
+            raw_alpha = min(1.0, span_s / params.raw_lowpass_s)
+            recent_world = recent_world + raw_alpha * (g * DOWN_NED - accel - recent_world)
+            recent_var, recent_cov = _noise_after(recent_var, recent_cov, raw_alpha, span_s, noise_m_s, previous.noise_m_s)
+        recent_ns = mid_ns
+        start, end = _force_at(knots, previous.measured_ns), _force_at(knots, measured)
+        if start is None or end is None:
+            diagnostics.append(UpdateDiagnostic.of("velocity", "gated", "gap"))
+            continue
+        force = (end - start) / span_s  # mean specific force over the GNSS interval, in S
         # the jump check: against the accelerometer's acceleration, rotated by the estimate (S -> NED), only when a pair comes
         predicted = (quat.to_matrix(predicted_q) @ to_s.T) @ force + g * DOWN_NED
         difference = accel - predicted
@@ -272,11 +295,7 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
             body_lp = world_lp = np.zeros(3)
         body_lp = body_lp + alpha * (-force - body_lp)
         world_lp = world_lp + alpha * (g * DOWN_NED - accel - world_lp)
-        # the velocity noise in the low-pass: y = (1 - a) y + (a / T)(n1 - n0), n0 shared with the previous difference
-        gain = alpha / span_s
-        noise_var = ((1.0 - alpha) ** 2 * noise_var + gain**2 * (noise_m_s**2 + previous.noise_m_s**2)
-                     - 2.0 * (1.0 - alpha) * gain * noise_cov)
-        noise_cov = gain * noise_m_s**2
+        noise_var, noise_cov = _noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous.noise_m_s)
         vertical, fused = both_vertical, True
         diagnostics.append(UpdateDiagnostic("velocity", "fused", test_ratio=ratio, values=values))
     last = tick_ns if fused else state.last_fused_ns
@@ -291,8 +310,25 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
     newest = max((s.measured_ns for s in kept), default=None)
     moving = newest is not None and any(newest - s.measured_ns <= max_age_ns and math.hypot(*s.vel_ned_m_s) > params.moving_speed_m_s
                                         for s in kept)
-    after = VelocityState(kept, knots, body_lp, world_lp, vertical, noise_var, noise_cov, last)
+    after = VelocityState(kept, knots, body_lp, world_lp, vertical, noise_var, noise_cov, last, recent_world, recent_ns, recent_var, recent_cov)
     return VelocityTrack(after, active, fused and active, interval, moving, tuple(diagnostics), events)
+
+
+def raw_world(params: GnssSettings, gravity: AccelSettings, state: VelocityState, tick_ns: int) -> GnssWorld | None:
+    """What a raw accelerometer reading measures in the world while fixes come: ``g e_z - a``, ``a`` the pairs'
+    acceleration low-passed over ``gnss.raw_lowpass_s``, if the newest was measured within ``gnss.max_age_s``
+    (and the fix's latency) of the tick and ``a`` is beyond three times its noise; None: down alone (an
+    acceleration the noise could make is better taken as none). In a turn the raw reading is the lift's direction,
+    the bank's vertical; with the turn's acceleration taken out it is gravity's, to within the pairs' age times the
+    turn rate (2 deg at 0.1 rad/s and 0.35 s)."""
+    if not params.enabled or state.recent_world_m_s2 is None or state.recent_ns is None:
+        return None
+    if tick_ns - state.recent_ns > round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9):
+        return None
+    noise_m_s2 = math.sqrt(max(state.recent_noise_var_m2_s4, 0.0))
+    if _norm(gravity.gravity_m_s2 * DOWN_NED - state.recent_world_m_s2) <= 3.0 * noise_m_s2:
+        return None
+    return GnssWorld(state.recent_world_m_s2, noise_m_s2)
 
 
 def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: UpdateSettings, state: GravityState, velocity: VelocityTrack,
@@ -302,17 +338,18 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     low-pass is dropped meanwhile, so that it starts again from the estimate if the aiding ends."""
     v = velocity.state
     if v.body_lp_m_s2 is None or v.world_lp_m_s2 is None:
-        return GravityReading(GravityState(state.q_strapdown, None, state.down_body, state.converged, state.tilt_known, state.gated_s),
-                              None, False, False, None)
+        return GravityReading(dataclasses.replace(state, accel_lp_m_s2=None, raw_mean_m_s2=None, raw_s=0.0), None, False, False, None)
     body = quat.to_matrix(state.q_strapdown).T @ v.body_lp_m_s2  # S -> body
     rotation = quat.to_matrix(predicted_q)  # body -> NED
-    world = v.world_lp_m_s2
+    world = v.world_lp_m_s2  # its vertical part g - a_v, or g without vertical velocity: free of the estimate
+    body_norm, measured_norm = _norm(body), _norm(world)
     if not v.vertical:  # the vertical is unknown: measured are the horizontal components only (module docstring)
         world = np.array([world[0], world[1], float(rotation[2] @ body)])
-    # down in the body for the magnetometer's dip gate, every tick: gravity's direction a - f, a seen through the estimate
+    # down in the body (the autopilot attitude's check), every tick: gravity's direction a - f, a seen through the estimate
     down = body - rotation.T @ (world - params.gravity_m_s2 * DOWN_NED)
-    held = GravityState(state.q_strapdown, None, down / _norm(down), state.converged, state.tilt_known, state.gated_s)
-    body_norm, world_norm = _norm(body), _norm(world)
+    held = dataclasses.replace(state, accel_lp_m_s2=None, down_body=down / _norm(down), raw_mean_m_s2=None, raw_s=0.0,
+                               measured_body=body / body_norm, measured_world=v.world_lp_m_s2 / measured_norm)
+    world_norm = _norm(world)
     norm_error = abs(body_norm - world_norm) / params.gravity_m_s2
     trusted = norm_error < 0.5 * params.norm_gate_fraction
     if not velocity.fused:
@@ -332,7 +369,7 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, interval)
     diagnostic = UpdateDiagnostic.of("gravity", verdict.outcome, "innovation" if verdict.outcome == "gated" else "", innovation, sigma,
                                      verdict.test_ratio, aiding)
-    after = GravityState(state.q_strapdown, None, held.down_body, True, True, verdict.gated_s)
+    after = dataclasses.replace(held, converged=True, tilt_known=True, gated_s=verdict.gated_s)
     if verdict.outcome == "gated":
         return GravityReading(after, None, False, False, diagnostic)
     return GravityReading(after, vector_exponent(body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
