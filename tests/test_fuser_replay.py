@@ -29,7 +29,7 @@ SIM_LOGS = sorted(LOGS.glob("sim_*.mcap"))
 # magnet 1.67-2.53, dropout 2.40-3.34. Aggressive was 6.22-7.06 before GNSS aiding (bound 8.0).
 BOUNDS = {"hover": 2.6, "aggressive": 4.0, "magnet": 3.3, "dropout": 4.5}
 # Reported uncertainty against actual error, seed 0, with GNSS aiding: within 2x with the magnet (1.88) and
-# through the dropouts (1.64); hover 2.01x and the aggressive flight 3.0x (see _pessimistic: the heading floor
+# through the dropouts (1.75); hover 2.01x and the aggressive flight 3.0x (see _pessimistic: the heading floor
 # fitted on BROAD's distorted fields is pessimistic for the simulator's exact one).
 
 

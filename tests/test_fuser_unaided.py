@@ -195,3 +195,18 @@ def test_the_learnt_norm_is_a_mean_in_the_strapdown_frame():
         state = learn_norm(params, state, gravity, f, dt, False)
     assert np.linalg.norm(state.norm_mean_m_s2) == pytest.approx(G, rel=2e-3)
     assert math.hypot(a, G) > 1.04 * G
+
+
+def test_a_norm_learnt_in_a_turn_does_not_hide_it():
+    """Started in a sustained 30-deg turn, the first minute's mean specific force is the turn's, not gravity's (the
+    circle is far from closed): learnt as the sensor's norm it would read the turn as no acceleration. Learning may
+    only reveal: the unseen tilt is at least what the unlearnt 3 % tolerance leaves, ``atan(sqrt(4/3 - 1.0609))``."""
+    params = AccelSettings()
+    turn = _turn_specific_force(30.0)
+    state = UnaidedState()
+    for _ in range(6000):
+        state = learn_norm(params, state, GravityState(), turn, 0.01, False)
+    in_turn = dataclasses.replace(state, excess_m2_s4=excess_norm_sq_m2_s4(params, turn))
+    expected = math.degrees(math.atan(math.sqrt(4 / 3 - 1.0609)))
+    assert math.degrees(math.sqrt(unseen_variances_rad2(params, in_turn, None)[0])) == pytest.approx(expected, abs=1e-9)
+    assert unseen_variances_rad2(params, cleared(params, in_turn), None) == (0.0, 0.0)

@@ -31,7 +31,9 @@ banked less than ``acos(1 / (1 + tolerance))`` stay unseen, 14 deg at the
 default 3 %); once it is, ``accel.unaided_learnt_tolerance_fraction`` (0.5 %:
 the norm changes with the orientation when the axes' scale errors differ) and
 what a vertical speed change ``dv`` over the window ``T`` puts into the learnt
-norm, ``2 g dv / T``. On the simulated multirotor without GNSS (norm 1.8 %
+norm, ``2 g dv / T``. Learning may only reveal, never hide more than the
+unlearnt tolerance: a window flown in a turn throughout (a start mid-turn)
+learns the turn's norm, not the sensor's. On the simulated multirotor without GNSS (norm 1.8 %
 high) the followed excess rose 2 m^2/s^4 above the learnt norm in the turns,
 where the tilt error was 7 deg, which the 3 % hid entirely.
 
@@ -111,6 +113,19 @@ def _allowed_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
     return min(initial, learnt)
 
 
+def _hidden_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
+    """The largest excess read as no acceleration: the learnt norm's plus its tolerance, never more than the
+    unlearnt tolerance's alone. Learning the norm may only reveal: a window flown in a turn throughout (a start
+    mid-turn, a long loiter) learns the turn's norm, not the sensor's, and must not hide the turn."""
+    initial = ((1.0 + params.unaided_norm_tolerance_fraction) ** 2 - 1.0) * params.gravity_m_s2**2
+    return min(initial, _baseline_m2_s4(params, state) + _allowed_m2_s4(params, state))
+
+
+def _nothing_unseen_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
+    """The excess of no unseen acceleration: the learnt norm's, or the largest hidden one if that is smaller."""
+    return min(_baseline_m2_s4(params, state), _hidden_m2_s4(params, state))
+
+
 def unaided_target(params: AccelSettings, gravity: GravityState, interval_s: float, tau_s: float) -> tuple[float, float]:
     """What the excess follows this tick without GNSS aiding, and with which time constant: the low-passed
     reading's with the tilt time constant ``tau_s`` while the plain gravity update uses the low-pass; while it uses
@@ -132,7 +147,7 @@ def followed(params: AccelSettings, state: UnaidedState, target_m2_s4: float, in
 
 def cleared(params: AccelSettings, state: UnaidedState) -> UnaidedState:
     """No unseen acceleration: the autopilot's attitude was fused, whose down is its own estimator's."""
-    return dataclasses.replace(state, excess_m2_s4=_baseline_m2_s4(params, state))
+    return dataclasses.replace(state, excess_m2_s4=_nothing_unseen_m2_s4(params, state))
 
 
 def corrected(params: AccelSettings, state: UnaidedState, prior_tilt_deg: float, sigma_deg: float, bound_rad: float) -> UnaidedState:
@@ -142,20 +157,19 @@ def corrected(params: AccelSettings, state: UnaidedState, prior_tilt_deg: float,
     sec. 5), not faster: after a turn flown unaided the aided readings need seconds to pull the tilt back, and the
     estimate is as far off meanwhile as it was. Nor is it larger than the reading allows (``bound_rad``: its
     innovation plus twice its noise), which the excess cannot tell from a vertical acceleration (a take-off)."""
-    baseline = _baseline_m2_s4(params, state)
     tilt_rad = _unseen_tilt_rad(params, state)
     if tilt_rad == 0.0:  # the aided reading takes out what the excess within the tolerance may have been
-        return dataclasses.replace(state, excess_m2_s4=min(state.excess_m2_s4, baseline))
+        return dataclasses.replace(state, excess_m2_s4=min(state.excess_m2_s4, _nothing_unseen_m2_s4(params, state)))
     prior = 0.5 * math.radians(prior_tilt_deg) ** 2
     gain = prior / (prior + math.radians(sigma_deg) ** 2) if prior > 0.0 else 0.0
     tilt_rad = min((1.0 - gain) * tilt_rad, bound_rad)
-    return dataclasses.replace(state, excess_m2_s4=baseline + _allowed_m2_s4(params, state) + (params.gravity_m_s2 * math.tan(tilt_rad)) ** 2)
+    return dataclasses.replace(state, excess_m2_s4=_hidden_m2_s4(params, state) + (params.gravity_m_s2 * math.tan(tilt_rad)) ** 2)
 
 
 def _unseen_tilt_rad(params: AccelSettings, state: UnaidedState) -> float:
-    """The tilt the excess over the learnt norm, read as a horizontal acceleration beyond the tolerance, makes:
+    """The tilt the excess beyond the hidden one (:func:`_hidden_m2_s4`), read as a horizontal acceleration, makes:
     ``atan(|a_h| / g)``."""
-    horizontal_sq_m2_s4 = state.excess_m2_s4 - _baseline_m2_s4(params, state) - _allowed_m2_s4(params, state)
+    horizontal_sq_m2_s4 = state.excess_m2_s4 - _hidden_m2_s4(params, state)
     return math.atan2(math.sqrt(horizontal_sq_m2_s4), params.gravity_m_s2) if horizontal_sq_m2_s4 > 0.0 else 0.0
 
 
