@@ -213,27 +213,36 @@ class ImuCheckSettings(Settings):
 
 @dataclass(frozen=True)
 class BiasSettings(Settings):
-    """The gyro bias: a point estimate beside the Bingham, learnt at rest (:class:`RestSettings`) and by
-    integral feedback in slow motion; its uncertainty enters the process noise as a correlated error."""
+    """The gyro bias: a Gaussian beside the Bingham, measured at rest (:class:`RestSettings`) and learnt in motion
+    from the tilt and heading corrections (VQF's motion bias estimation, :mod:`fuser.model.bias`); its uncertainty
+    enters the process noise as a correlated error."""
 
     section: ClassVar[str] = "fuser.bias"
 
     initial_sigma_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.015
     """Uncertainty of the bias before it has been learnt (one sigma, per axis); also its ceiling."""
     floor_sigma_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 0.003
-    """Uncertainty the estimate settles to while it is learnt in motion (integral feedback)."""
+    """The least uncertainty learning in motion brings the estimate to (one sigma, per axis): the corrections also
+    carry the slowly varying errors of what they follow, which their noise model counts as white; a bias measured
+    better at rest keeps its own."""
     walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 1e-4
     """Random walk of the bias (temperature, instability): a bias learnt at rest is not trusted for ever."""
     feedback_enabled: bool = True
-    """Learn the bias in motion by integral feedback of the tick's correction (Mahony-style)."""
+    """Learn the bias in motion: from the plain tilt and the heading corrections (VQF's motion bias estimation), by
+    integral feedback while GNSS aids the tilt (:mod:`fuser.model.bias`)."""
     time_constant_s: Seconds = 5.0
-    """Time constant of the feedback, and the correlation time of the residual bias in the process noise."""
+    """Time constant of the integral feedback while GNSS aids the tilt, and the correlation time of the residual
+    bias in the process noise while it is learnt in motion (an error held for this long turns the attitude by itself
+    times this)."""
     correlation_without_feedback_s: Seconds = 10.0
-    """Correlation time of the residual bias in the process noise while the feedback is off."""
+    """Correlation time of the residual bias in the process noise while it is not learnt in motion."""
+    motion_tilt_noise_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
+    """Error of the low-passed down the plain tilt correction follows (the linear acceleration its low-pass leaves),
+    correlated over the tilt time constant: the noise of the tilt correction as a measurement of the bias."""
     learn_max_rate_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
-    """Feedback only in ticks rotating slower than this, with a trusted accelerometer."""
+    """While GNSS aids the tilt, the integral feedback learns only in ticks rotating slower than this."""
     learn_max_uncertainty_deg: Annotated[float, Range(gt=0, unit="deg")] = 5.0
-    """Feedback only when the prediction was this sure: a guess (uniform start, after a gap) is not drift."""
+    """Learn in motion only when the prediction was this sure: a guess (uniform start, after a gap) is not drift."""
     max_abs_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
     """Clamp of each axis of the estimate: beyond any MEMS gyro's bias, stops a wrong start from running away."""
     min_variance_rad2_s2: Annotated[float, Range(gt=0, unit="(rad/s)^2")] = 1e-18

@@ -19,7 +19,9 @@ or a local computed above it.
    and one eigendecomposition (QBF paper, sec. 5, eq. 3); only the first tilt
    ever measured is applied at once, for the heading that follows it.
 3. **Bias** (:mod:`~fuser.model.rest`, :mod:`~fuser.model.bias`): measured at
-   rest, learnt from the tick's correction in slow motion.
+   rest, learnt in motion from the tick's tilt and heading corrections (a
+   Kalman filter on the bias, VQF's motion bias estimation), each through the
+   model of the correction, plain or GNSS-aided, that made it.
 4. **Publish**: the posterior widened by the model error
    (:mod:`fuser.model_error`), by the error of a gyro rate held since the
    last sample, and while an IMU is kept out.
@@ -143,7 +145,8 @@ class FusionModel:
         # 2. updates, gated against the prediction; their exponents add up to one product
         belief, exponent = prediction.attitude, np.zeros((4, 4))
         diagnostics: list[UpdateDiagnostic] = []
-        rest, heading, accel_trusted, excess = s.rest, s.heading, False, s.unaided_excess_m2_s4
+        rest, heading, excess = s.rest, s.heading, s.unaided_excess_m2_s4
+        reading, h, since, attitude_fused = None, None, dt, False  # the tick's readings, for the bias (step 3)
         interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
         if field_diagnostic is not None:
             diagnostics.append(field_diagnostic)
@@ -163,7 +166,7 @@ class FusionModel:
                 reading = update_gravity_aided(cfg.accel, cfg.gnss, cfg.updates, gravity, velocity, context, tau, predicted_q)
             else:
                 reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval)
-            gravity, accel_trusted = reading.state, reading.trusted
+            gravity = reading.state
             # an acceleration the unaided accelerometer cannot tell from gravity, as far as the estimate follows it
             target = 0.0 if velocity.active else excess_norm_sq_m2_s4(cfg.accel, gravity.accel_lp_m_s2)
             excess = followed(cfg.accel, excess, target, interval, tau)
@@ -193,16 +196,15 @@ class FusionModel:
                 exponent = exponent + e
             diagnostics += a.diagnostics
             if a.exponents:  # the autopilot's down, fused: what the accelerometer could not see is its estimator's
-                excess = 0.0
+                excess, attitude_fused = 0.0, True
         elif attitudes:
             events += ["attitude_unused"] * len(attitudes)
         posterior = _multiplied(belief, exponent)
 
-        # 3. bias feedback from the tick's correction
-        if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, rate, context.prior_doubt_deg):
-            # the correction spans the ticks since the bias last learnt: in motion with GNSS, the aided readings' spacing
-            learnt_over = velocity.interval_s if velocity.active and velocity.moving else interval
-            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, learnt_over)
+        # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
+        if imu:
+            bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context.prior_doubt_deg, tau, interval,
+                                                 velocity, reading, h, since, excess, attitude_fused, rest.at_rest, rate, self.method)
 
         # 4. publish: widened by the model error, the error of a rate held since the last sample, an IMU kept out and,
         # without GNSS aiding, the acceleration the accelerometer's norm reveals
