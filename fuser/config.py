@@ -38,6 +38,7 @@ __all__ = [
     "AccelSettings",
     "AttitudeSettings",
     "BiasSettings",
+    "ExtrapolationSettings",
     "FuserConfig",
     "GnssSettings",
     "GyroSettings",
@@ -412,6 +413,23 @@ class ModelErrorSettings(Settings):
 
 
 @dataclass(frozen=True)
+class ExtrapolationSettings(Settings):
+    """How far ahead of its tick the published estimate is carried by the gyro (:mod:`fuser.model.extrapolation`)."""
+
+    section: ClassVar[str] = "fuser.extrapolation"
+
+    to: Literal["hold_midpoint", "published", "tick"] = "hold_midpoint"
+    """``"published"``: to the instant the loop publishes it (``latency_ms`` after the tick), so that a consumer
+    gets the attitude of the moment it receives it; ``"hold_midpoint"``: half a tick period further, the middle
+    of the interval a consumer holds it; ``"tick"``: not carried (the attitude at the tick). The estimate is
+    stamped with the time it is for."""
+    imu_delay_ms: Annotated[float, Range(ge=0, unit="ms")] = 3.5
+    """How long before its stamp the motion an IMU sample describes happened: the IMU's filter group delay, plus
+    half the interval for a rate averaged over the interval since the previous sample. The published state is
+    carried this much further (the filter's state, like the samples, is that far behind its tick)."""
+
+
+@dataclass(frozen=True)
 class GnssSettings(Settings):
     """GNSS velocity as the world acceleration the gravity update takes out of the specific force
     (:mod:`fuser.model.velocity`)."""
@@ -503,6 +521,7 @@ class FuserConfig(Settings):
     attitude: AttitudeSettings = AttitudeSettings()
     updates: UpdateSettings = UpdateSettings()
     model_error: ModelErrorSettings = ModelErrorSettings()
+    extrapolation: ExtrapolationSettings = ExtrapolationSettings()
     gnss: GnssSettings = GnssSettings()
     latency: LatencySettings = LatencySettings()
     zenoh: ZenohSettings = ZenohSettings()

@@ -16,6 +16,7 @@ gravity update), :mod:`~fuser.model.field` (the reference field from the WMM), :
 (what an unaided accelerometer cannot see, for the published uncertainty), :mod:`~fuser.model.gate` (their
 innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
 :mod:`~fuser.model.body_frame` (readings in the state's body frame),
+:mod:`~fuser.model.extrapolation` (the published state carried ahead of its tick),
 :mod:`~fuser.model.state` (the persistent state), :mod:`~fuser.model.tick`
 (what goes in and out of a tick), :mod:`~fuser.model.diagnostics` (what each
 update did).

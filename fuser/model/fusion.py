@@ -22,9 +22,10 @@ or a local computed above it.
    rest, learnt in motion from the tick's tilt and heading corrections (a
    Kalman filter on the bias, VQF's motion bias estimation), each through the
    model of the correction, plain or GNSS-aided, that made it.
-4. **Publish**: the posterior widened by the model error
+4. **Publish**: the posterior carried ahead of the tick to the time it is
+   for (:mod:`~fuser.model.extrapolation`), widened by the model error
    (:mod:`fuser.model_error`), by the error of a gyro rate held since the
-   last sample, and while an IMU is kept out.
+   last sample and over the lead, and while an IMU is kept out.
 
 The state is at the tick's end: the gyro carries it over the whole tick, and
 every reading is turned into the body frame of that instant.
@@ -49,6 +50,7 @@ from fuser.model import bias as bias_feedback
 from fuser.model.attitude import attitude_in_use, update_attitude
 from fuser.model.body_frame import lags_s, mean_in_state_body
 from fuser.model.diagnostics import UpdateDiagnostic, counter_name
+from fuser.model.extrapolation import ahead_ns, carry_ns, lead
 from fuser.model.field import heading_change_rad, turned_heading, update_field
 from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
 from fuser.model.heading import FieldReference, heading_sigma_rad, update_heading
@@ -85,6 +87,7 @@ class FusionModel:
         """Normalization constant behind every moment match (:mod:`core.normalization`)."""
         self.counters: Counter[str] = Counter()
         """Events so far: readings gated by reason, gyro gaps, rest ticks, ..."""
+        self._ahead_ns, self._carry_ns = ahead_ns(config), carry_ns(config)
         self._state = initial_state(config)
 
     @property
@@ -206,18 +209,20 @@ class FusionModel:
             bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context.prior_doubt_deg, tau, interval,
                                                  velocity, reading, h, since, excess, attitude_fused, rest.at_rest, rate, self.method)
 
-        # 4. publish: widened by the model error, the error of a rate held since the last sample, an IMU kept out and,
-        # without GNSS aiding, the acceleration the accelerometer's norm reveals
-        widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
+        # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
+        # the last sample and over the lead, an IMU kept out and, without GNSS aiding, the acceleration the norm reveals
+        ahead = lead(cfg.gyro, track, bias.estimate_rad_s, tick.t_ns, self._carry_ns)
+        widening = motion.hold_variance_rad2 + ahead.variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
         unseen_rad2 = unseen_variances_rad2(cfg.accel, excess, field.field_ned_gauss if cfg.mag.enabled else None)
-        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening, unseen_rad2)
+        carried = posterior if ahead.rotation is None else posterior.rotate_right(ahead.rotation)
+        published = model_error.published(cfg.model_error, carried, error_state.rate_sq, cfg.mag.enabled, widening, unseen_rad2)
 
         self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
                                   rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
                                   model_error=error_state, velocity=velocity.state, field=field, unaided_excess_m2_s4=excess)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
-        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))
+        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters), self._ahead_ns)
 
     def _mag_in_state_body(self, tick: TickInput, imu: list[tuple[ImuSample, int]], body_rate: np.ndarray | None) -> np.ndarray | None:
         """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body
