@@ -82,10 +82,14 @@ about 70 % of the bias while its uncertainty reaches the floor; suspects:
 stage 1's delay by the GNSS latency, neglected here, and the aided world
 vector's correction of the heading in turns, which the heading row then
 undoes). So while GNSS aids, the tick's whole correction is fed back as
-before (:func:`feedback_while_aided`, Mahony-style integral feedback with
+before (:func:`integral_feedback`, Mahony-style integral feedback with
 ``time_constant_s``, in ticks slower than ``learn_max_rate_rad_s``, over the
 aided readings' spacing in motion), and the Kalman filter learns from the
-plain and the heading corrections only. The stages still follow the
+plain and the heading corrections only. The same while the autopilot's
+attitude is in use (a telemetry link's slow IMU): its corrections are not
+modelled either, and not learning from them at all let the published
+uncertainty of the telemetry flight (tests/test_fuser_slow_link.py) grow
+to 27 deg. The stages still follow the
 rotation while aided, and start again when the correction changes: nothing
 is learnt from the plain correction for ``SETTLE_TIME_CONSTANTS`` tilt time
 constants after the aiding ends (its low-pass starts again from its first
@@ -121,7 +125,7 @@ from fuser.model.state import BiasState
 from fuser.model.unaided import unseen_variances_rad2
 from fuser.model.velocity import VelocityTrack, tilt_doubt_deg
 
-__all__ = ["SETTLE_TIME_CONSTANTS", "HeadingEvidence", "TiltEvidence", "feedback_while_aided", "learn_from_tick", "learn_in_motion",
+__all__ = ["SETTLE_TIME_CONSTANTS", "HeadingEvidence", "TiltEvidence", "integral_feedback", "learn_from_tick", "learn_in_motion",
            "low_pass", "may_learn", "propagate", "reading_gain"]
 
 SETTLE_TIME_CONSTANTS = 2.0
@@ -251,7 +255,7 @@ def may_learn(params: BiasSettings, at_rest: bool, prior_doubt_deg: float) -> bo
 
 def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, posterior_q: np.ndarray, prior_doubt_deg: float,
                     tilt_tau_s: float, interval_s: float, velocity: VelocityTrack, tilt: GravityReading | None,
-                    heading: HeadingReading | None, heading_interval_s: float, unaided_excess_m2_s4: float, attitude_fused: bool,
+                    heading: HeadingReading | None, heading_interval_s: float, unaided_excess_m2_s4: float, attitude_in_use: bool,
                     at_rest: bool, rate_rad_s: float, method: Method) -> BiasState:
     """One tick of bias learning in motion from the tick's readings (``tilt``: the gravity update's, plain or aided,
     ``heading``: the magnetometer's, ``heading_interval_s`` after its previous one; None: none this tick), the
@@ -261,8 +265,9 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     plain tilt and the heading corrections teach the bias (:func:`learn_in_motion`) where :func:`may_learn`, from a
     trusted tilt reading (``unaided_excess_m2_s4``: the acceleration the accelerometer's norm reveals,
     :mod:`fuser.model.unaided`, in the tilt noise); while GNSS aids, the integral feedback
-    (:func:`feedback_while_aided`). Nothing while the autopilot's attitude (whose correction is not modelled here)
-    was fused."""
+    (:func:`integral_feedback`), and likewise while the autopilot's attitude is in use
+    (:func:`fuser.model.attitude.attitude_in_use`: the IMU too slow to carry the attitude, or ``attitude.mode =
+    "always"``): its corrections, which are not modelled here, interleave with the modelled ones."""
     aided = velocity.active
     tilt_variance = math.radians(tilt_doubt_deg(predicted, method)) ** 2
     tilt_gain = heading_gain = None
@@ -274,13 +279,13 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     state = low_pass(state, predicted.mode, tilt_tau_s, interval_s, aided, tilt_gain, heading_gain)
     params = config.bias
     tilt_trusted = tilt is not None and tilt.trusted
-    if attitude_fused or not tilt_trusted:
+    if not tilt_trusted:
         return state
-    if aided:
+    if aided or attitude_in_use:
         if rate_rad_s > params.learn_max_rate_rad_s or not may_learn(params, at_rest, prior_doubt_deg):
             return state
-        # the correction spans the ticks since the bias last learnt: in motion, the aided readings' spacing
-        return feedback_while_aided(params, state, predicted.mode, posterior_q, velocity.interval_s if velocity.moving else interval_s)
+        # the correction spans the ticks since the bias last learnt: in motion with GNSS, the aided readings' spacing
+        return integral_feedback(params, state, predicted.mode, posterior_q, velocity.interval_s if aided and velocity.moving else interval_s)
     tilt_evidence = heading_evidence = None
     if (tilt is not None and tilt_gain is not None and tilt.diagnostic is not None and tilt.diagnostic.outcome == "fused"
             and may_learn(params, at_rest, math.degrees(math.sqrt(tilt_variance)))):
@@ -293,10 +298,10 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
                            config.gyro.scale_error_fraction)
 
 
-def feedback_while_aided(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray,
-                         dt_s: float) -> BiasState:
-    """Integral feedback of the tick's correction into the bias while GNSS aids the tilt (``dt_s`` since the last
-    such correction; module docstring).
+def integral_feedback(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray,
+                      dt_s: float) -> BiasState:
+    """Integral feedback of the tick's correction into the bias while the corrections are not the ones the Kalman
+    filter models (GNSS aiding, the autopilot's attitude; ``dt_s`` since the last such correction; module docstring).
 
     A bias error ``e`` makes the prediction drift by ``e dt`` per tick, which
     the updates then correct; feeding ``-correction / tau`` back drives the

@@ -149,7 +149,7 @@ class FusionModel:
         belief, exponent = prediction.attitude, np.zeros((4, 4))
         diagnostics: list[UpdateDiagnostic] = []
         rest, heading, excess = s.rest, s.heading, s.unaided_excess_m2_s4
-        reading, h, since, attitude_fused = None, None, dt, False  # the tick's readings, for the bias (step 3)
+        reading, h, since = None, None, dt  # the tick's readings, for the bias (step 3)
         interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
         if field_diagnostic is not None:
             diagnostics.append(field_diagnostic)
@@ -199,7 +199,7 @@ class FusionModel:
                 exponent = exponent + e
             diagnostics += a.diagnostics
             if a.exponents:  # the autopilot's down, fused: what the accelerometer could not see is its estimator's
-                excess, attitude_fused = 0.0, True
+                excess = 0.0
         elif attitudes:
             events += ["attitude_unused"] * len(attitudes)
         posterior = _multiplied(belief, exponent)
@@ -207,7 +207,8 @@ class FusionModel:
         # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
         if imu:
             bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context.prior_doubt_deg, tau, interval,
-                                                 velocity, reading, h, since, excess, attitude_fused, rest.at_rest, rate, self.method)
+                                                 velocity, reading, h, since, excess, attitude_in_use(cfg.attitude, track, tick.t_ns),
+                                                 rest.at_rest, rate, self.method)
 
         # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
         # the last sample and over the lead, an IMU kept out and, without GNSS aiding, the acceleration the norm reveals
