@@ -165,8 +165,10 @@ def propagate(params: BiasSettings, state: BiasState, dt_s: float) -> BiasState:
 
 def reading_gain(prior_variance_rad2: float, sigma_rad: float) -> float:
     """Gain of a Bingham product on the axes a reading of sigma ``sigma_rad`` informs, for a prior of variance
-    ``prior_variance_rad2`` on them: the mode moves by ``P / (P + sigma^2)`` of the innovation (both concentrated:
-    the product of two Gaussians in the tangent space; unscented paper, sec. IV-B, for the likelihood's sigma)."""
+    ``prior_variance_rad2`` on them: the mode moves by ``P / (P + sigma^2)`` of the innovation. The product adds
+    the exponents (QBF paper, sec. 5, eq. 3); both concentrated, each is a Gaussian in the tangent space whose
+    angle variance per axis is ``2 / |z|`` (the prior's) and ``sigma^2`` (the vector likelihood's, ``z = -2 /
+    sigma^2``; unscented paper, sec. IV-B), and the product of two Gaussians moves by that fraction."""
     total = prior_variance_rad2 + sigma_rad**2
     return prior_variance_rad2 / total if total > 0.0 else 0.0
 
