@@ -230,18 +230,18 @@ class BiasSettings(Settings):
     """Random walk of the bias (temperature, instability): a bias learnt at rest is not trusted for ever."""
     feedback_enabled: bool = True
     """Learn the bias in motion: from the plain tilt and the heading corrections (VQF's motion bias estimation), by
-    integral feedback while GNSS aids the tilt (:mod:`fuser.model.bias`)."""
+    integral feedback while GNSS aids the tilt or the autopilot's attitude is in use (:mod:`fuser.model.bias`)."""
     time_constant_s: Seconds = 5.0
-    """Time constant of the integral feedback while GNSS aids the tilt, and the correlation time of the residual
-    bias in the process noise while it is learnt in motion (an error held for this long turns the attitude by itself
-    times this)."""
+    """Time constant of the integral feedback (GNSS aiding, the autopilot's attitude), and the correlation time of
+    the residual bias in the process noise while it is learnt in motion (an error held for this long turns the
+    attitude by itself times this)."""
     correlation_without_feedback_s: Seconds = 10.0
     """Correlation time of the residual bias in the process noise while it is not learnt in motion."""
     motion_tilt_noise_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
     """Error of the low-passed down the plain tilt correction follows (the linear acceleration its low-pass leaves),
     correlated over the tilt time constant: the noise of the tilt correction as a measurement of the bias."""
     learn_max_rate_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
-    """While GNSS aids the tilt, the integral feedback learns only in ticks rotating slower than this."""
+    """The integral feedback (GNSS aiding, the autopilot's attitude) learns only in ticks rotating slower than this."""
     learn_max_uncertainty_deg: Annotated[float, Range(gt=0, unit="deg")] = 5.0
     """Learn in motion only when the prediction was this sure: a guess (uniform start, after a gap) is not drift."""
     max_abs_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
