@@ -74,8 +74,8 @@ STEPS: dict[str, list[tuple[object, str]]] = {
     "attitude source": [(fusion, "attitude_in_use"), (fusion, "update_attitude")],
     "product + eigendecomposition": [(fusion, "_multiplied")],
     "moment fit / normaliser": [(core.bingham, "fit_dispersion_trusted"), (core.bingham, "moments_trusted"), (fusion, "rms_angle_deg")],
-    "rest, bias": [(fusion, "detect_rest"), (fusion, "measure_bias"), (bias_feedback, "propagate"), (bias_feedback, "may_learn"),
-                   (bias_feedback, "learn_from_correction")],
+    "rest, bias": [(fusion, "detect_rest"), (fusion, "measure_bias"), (bias_feedback, "propagate"),
+                   (bias_feedback, "learn_from_tick")],
     "model error": [(model_error, "published"), (model_error, "observe_rate")],
 }
 PUBLISH = "publish (estimate_of: the wire Estimate)"

@@ -38,6 +38,7 @@ __all__ = [
     "AccelSettings",
     "AttitudeSettings",
     "BiasSettings",
+    "ExtrapolationSettings",
     "FuserConfig",
     "GnssSettings",
     "GyroSettings",
@@ -213,27 +214,36 @@ class ImuCheckSettings(Settings):
 
 @dataclass(frozen=True)
 class BiasSettings(Settings):
-    """The gyro bias: a point estimate beside the Bingham, learnt at rest (:class:`RestSettings`) and by
-    integral feedback in slow motion; its uncertainty enters the process noise as a correlated error."""
+    """The gyro bias: a Gaussian beside the Bingham, measured at rest (:class:`RestSettings`) and learnt in motion
+    from the tilt and heading corrections (VQF's motion bias estimation, :mod:`fuser.model.bias`); its uncertainty
+    enters the process noise as a correlated error."""
 
     section: ClassVar[str] = "fuser.bias"
 
     initial_sigma_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.015
     """Uncertainty of the bias before it has been learnt (one sigma, per axis); also its ceiling."""
     floor_sigma_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 0.003
-    """Uncertainty the estimate settles to while it is learnt in motion (integral feedback)."""
+    """The least uncertainty learning in motion brings the estimate to (one sigma, per axis): the corrections also
+    carry the slowly varying errors of what they follow, which their noise model counts as white; a bias measured
+    better at rest keeps its own."""
     walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 1e-4
     """Random walk of the bias (temperature, instability): a bias learnt at rest is not trusted for ever."""
     feedback_enabled: bool = True
-    """Learn the bias in motion by integral feedback of the tick's correction (Mahony-style)."""
+    """Learn the bias in motion: from the plain tilt and the heading corrections (VQF's motion bias estimation), by
+    integral feedback while GNSS aids the tilt or the autopilot's attitude is in use (:mod:`fuser.model.bias`)."""
     time_constant_s: Seconds = 5.0
-    """Time constant of the feedback, and the correlation time of the residual bias in the process noise."""
+    """Time constant of the integral feedback (GNSS aiding, the autopilot's attitude), and the correlation time of
+    the residual bias in the process noise while it is learnt in motion (an error held for this long turns the
+    attitude by itself times this)."""
     correlation_without_feedback_s: Seconds = 10.0
-    """Correlation time of the residual bias in the process noise while the feedback is off."""
+    """Correlation time of the residual bias in the process noise while it is not learnt in motion."""
+    motion_tilt_noise_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
+    """Error of the low-passed down the plain tilt correction follows (the linear acceleration its low-pass leaves),
+    correlated over the tilt time constant: the noise of the tilt correction as a measurement of the bias."""
     learn_max_rate_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
-    """Feedback only in ticks rotating slower than this, with a trusted accelerometer."""
+    """The integral feedback (GNSS aiding, the autopilot's attitude) learns only in ticks rotating slower than this."""
     learn_max_uncertainty_deg: Annotated[float, Range(gt=0, unit="deg")] = 5.0
-    """Feedback only when the prediction was this sure: a guess (uniform start, after a gap) is not drift."""
+    """Learn in motion only when the prediction was this sure: a guess (uniform start, after a gap) is not drift."""
     max_abs_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
     """Clamp of each axis of the estimate: beyond any MEMS gyro's bias, stops a wrong start from running away."""
     min_variance_rad2_s2: Annotated[float, Range(gt=0, unit="(rad/s)^2")] = 1e-18
@@ -413,6 +423,23 @@ class ModelErrorSettings(Settings):
 
 
 @dataclass(frozen=True)
+class ExtrapolationSettings(Settings):
+    """How far ahead of its tick the published estimate is carried by the gyro (:mod:`fuser.model.extrapolation`)."""
+
+    section: ClassVar[str] = "fuser.extrapolation"
+
+    to: Literal["hold_midpoint", "published", "tick"] = "hold_midpoint"
+    """``"published"``: to the instant the loop publishes it (``latency_ms`` after the tick), so that a consumer
+    gets the attitude of the moment it receives it; ``"hold_midpoint"``: half a tick period further, the middle
+    of the interval a consumer holds it; ``"tick"``: not carried (the attitude at the tick). The estimate is
+    stamped with the time it is for."""
+    imu_delay_ms: Annotated[float, Range(ge=0, unit="ms")] = 3.5
+    """How long before its stamp the motion an IMU sample describes happened: the IMU's filter group delay, plus
+    half the interval for a rate averaged over the interval since the previous sample. The published state is
+    carried this much further (the filter's state, like the samples, is that far behind its tick)."""
+
+
+@dataclass(frozen=True)
 class GnssSettings(Settings):
     """GNSS velocity as the world acceleration the gravity update takes out of the specific force
     (:mod:`fuser.model.velocity`)."""
@@ -508,6 +535,7 @@ class FuserConfig(Settings):
     attitude: AttitudeSettings = AttitudeSettings()
     updates: UpdateSettings = UpdateSettings()
     model_error: ModelErrorSettings = ModelErrorSettings()
+    extrapolation: ExtrapolationSettings = ExtrapolationSettings()
     gnss: GnssSettings = GnssSettings()
     latency: LatencySettings = LatencySettings()
     zenoh: ZenohSettings = ZenohSettings()

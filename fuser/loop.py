@@ -267,7 +267,8 @@ class FusionLoop:
         self.counters["ticks"] += 1
         result = self.model.step(TickInput(tick_ns, dt, [p[2] for p in due], [p[0] for p in due]))
         offset = None if self.reference_imu is None else self.timeline.offsets[(self.reference_imu, ImuSample)]
-        estimate = estimate_of(tick_ns, result, {**result.counters, **self.counters}, None if offset is None else tick_ns - offset)
+        stamp = tick_ns + result.ahead_ns  # the time the published state is for (fuser.model.extrapolation)
+        estimate = estimate_of(stamp, result, {**result.counters, **self.counters}, None if offset is None else stamp - offset)
         for d in estimate.diagnostics:
             self._latest_diagnostics[d["update"]] = {"t_ns": tick_ns, **d}
         return estimate

@@ -33,8 +33,9 @@ LINK_NS = 1_000_000
 SCORED_FROM_S = 12.0
 AIDED_TILT_DEG = 1.0
 """RMS tilt over the turns with GNSS aiding: measured 0.61-0.63 deg on every path."""
-UNAIDED_TILT_DEG = 3.0
-"""Without GNSS the same turns are at least this far off (measured 3.9 deg): what the aiding is for."""
+UNAIDED_FACTOR = 3.0
+"""Without GNSS the same turns are at least this many times further off than with it (measured 2.8 deg against
+0.62: 4.5 times; 3.9 deg before the bias was learnt in motion without GNSS): what the aiding is for."""
 DOWN = np.array([0.0, 0.0, 1.0])
 
 
@@ -99,9 +100,9 @@ def clean(raw_int):
     return _fly(raw_int)
 
 
-def test_without_gnss_the_turns_are_off(raw_int):
+def test_without_gnss_the_turns_are_off(raw_int, clean):
     tilt, loop, estimates = _fly(raw_int, FuserConfig().replace(gnss={"enabled": False}))
-    assert tilt > UNAIDED_TILT_DEG, tilt
+    assert tilt > UNAIDED_FACTOR * clean[0], (tilt, clean[0])
     assert _aiding(estimates) == {None} and "gnss_fused" not in loop.model.counters
 
 

@@ -78,9 +78,11 @@ def test_aided_flights_meet_their_rms_bounds(flown):
 
 
 def test_without_gnss_the_same_flights_miss_them(flown):
-    """What the aiding buys: the accelerometer alone takes the thrust or the lift for gravity in the turns."""
+    """What the aiding buys: the accelerometer alone takes the thrust or the lift for gravity in the turns, at least
+    twice as far off (the multirotor's 30 s alone: 2.7 deg total, 2.3 tilt, against 0.85 and 0.48 aided; before the
+    bias was learnt in motion without GNSS it also missed the 3-deg bound)."""
     name, (aided, _), (alone, _) = flown
-    assert alone["total"] > TOTAL_BOUND_DEG[name] and alone["tilt"] > 2.0 * aided["tilt"], (aided, alone)
+    assert alone["total"] > 2.0 * aided["total"] and alone["tilt"] > 2.0 * aided["tilt"], (aided, alone)
 
 
 def test_with_aiding_the_reported_uncertainty_is_not_overconfident(flown):

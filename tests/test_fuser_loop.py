@@ -3,13 +3,13 @@
 import numpy as np
 
 from drivers.samples import ImuSample, SourceId
-from fuser.config import FuserConfig
+from fuser.config import ExtrapolationSettings, FuserConfig
 from fuser.loop import FusionLoop
 
 A = SourceId("mavlink", 1, 1, 0)
 B = SourceId("dronecan", 10, 0, 0)
 LEVEL = (0.0, 0.0, -9.80665)
-FIXED = FuserConfig(latency_ms=0.0).replace(latency={"adaptive": False})
+FIXED = FuserConfig(rate_hz=100.0, latency_ms=0.0).replace(latency={"adaptive": False})
 """The loop with a fixed wait of zero: a tick runs as soon as the clock reaches it."""
 
 
@@ -18,7 +18,8 @@ def imu(t_ns, src=A, gyro=(0.0, 0.0, 0.0)):
 
 
 def test_ticks_on_a_grid_and_each_sample_in_exactly_one_tick():
-    loop = FusionLoop(FIXED.replace(rate_hz=100.0))
+    # stamped at the tick itself (by default an estimate is stamped where fuser.model.extrapolation carries it)
+    loop = FusionLoop(FIXED.replace(rate_hz=100.0, extrapolation=ExtrapolationSettings(to="tick")))
     estimates = []
     for k in range(1, 401):  # 1 s of 400 Hz, received 1 ms after sending
         t = 5_000_000_000 + k * 2_500_000

@@ -40,7 +40,7 @@ def _rms_from_mcap(path: Path, since_s: float = 5.0) -> dict[str, float]:
                 est.append((d["sensor_t_ns"], d["q_wxyz"], d["uncertainty_deg"]))
             else:
                 o = d["pose"]["orientation"]
-                ref.append((message.log_time, [o["x"], o["y"], o["z"], o["w"]]))
+                ref.append((message.publish_time, [o["x"], o["y"], o["z"], o["w"]]))  # the vehicle's clock (fuser/IO.md)
     ref.sort()
     rt = np.array([t for t, _ in ref])
     keep = np.concatenate([[True], np.diff(rt) > 0])  # one reference per instant

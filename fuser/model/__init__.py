@@ -4,8 +4,8 @@ The state starts uniform: no prior knowledge of the attitude is needed. Per
 tick (:meth:`FusionModel.step`, in :mod:`fuser.model.fusion`): each IMU's gyro
 is integrated and the attitude predicted in closed form; gravity, the
 magnetometer's heading and an autopilot's attitude are fused as exact
-Bingham likelihoods; the gyro bias, a point estimate beside the Bingham, is
-learnt at rest directly and in motion by integral feedback (VQF: D. Laidig,
+Bingham likelihoods; the gyro bias, a Gaussian beside the Bingham, is
+measured at rest and learnt in motion from the tilt and heading corrections (VQF: D. Laidig,
 T. Seel, "VQF: Highly accurate IMU orientation estimation with bias
 estimation and magnetic disturbance rejection", Information Fusion 91, 2023).
 
@@ -16,6 +16,7 @@ gravity update), :mod:`~fuser.model.field` (the reference field from the WMM), :
 (what an unaided accelerometer cannot see, for the published uncertainty), :mod:`~fuser.model.gate` (their
 innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
 :mod:`~fuser.model.body_frame` (readings in the state's body frame),
+:mod:`~fuser.model.extrapolation` (the published state carried ahead of its tick),
 :mod:`~fuser.model.state` (the persistent state), :mod:`~fuser.model.tick`
 (what goes in and out of a tick), :mod:`~fuser.model.diagnostics` (what each
 update did).

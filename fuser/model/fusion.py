@@ -19,10 +19,13 @@ or a local computed above it.
    and one eigendecomposition (QBF paper, sec. 5, eq. 3); only the first tilt
    ever measured is applied at once, for the heading that follows it.
 3. **Bias** (:mod:`~fuser.model.rest`, :mod:`~fuser.model.bias`): measured at
-   rest, learnt from the tick's correction in slow motion.
-4. **Publish**: the posterior widened by the model error
+   rest, learnt in motion from the tick's tilt and heading corrections (a
+   Kalman filter on the bias, VQF's motion bias estimation), each through the
+   model of the correction, plain or GNSS-aided, that made it.
+4. **Publish**: the posterior carried ahead of the tick to the time it is
+   for (:mod:`~fuser.model.extrapolation`), widened by the model error
    (:mod:`fuser.model_error`), by the error of a gyro rate held since the
-   last sample, and while an IMU is kept out.
+   last sample and over the lead, and while an IMU is kept out.
 
 The state is at the tick's end: the gyro carries it over the whole tick, and
 every reading is turned into the body frame of that instant.
@@ -47,6 +50,7 @@ from fuser.model import bias as bias_feedback
 from fuser.model.attitude import attitude_in_use, update_attitude
 from fuser.model.body_frame import lags_s, mean_in_state_body
 from fuser.model.diagnostics import UpdateDiagnostic, counter_name
+from fuser.model.extrapolation import ahead_ns, carry_ns, lead
 from fuser.model.field import heading_change_rad, turned_heading, update_field
 from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
 from fuser.model.heading import FieldReference, heading_sigma_rad, update_heading
@@ -87,6 +91,7 @@ class FusionModel:
         """Normalization constant behind every moment match (:mod:`core.normalization`)."""
         self.counters: Counter[str] = Counter()
         """Events so far: readings gated by reason, gyro gaps, rest ticks, ..."""
+        self._ahead_ns, self._carry_ns = ahead_ns(config), carry_ns(config)
         self._state = initial_state(config)
 
     @property
@@ -148,7 +153,8 @@ class FusionModel:
         # 2. updates, gated against the prediction; their exponents add up to one product
         belief, exponent = prediction.attitude, np.zeros((4, 4))
         diagnostics: list[UpdateDiagnostic] = []
-        rest, heading, accel_trusted, unaided = s.rest, s.heading, False, s.unaided
+        rest, heading, unaided = s.rest, s.heading, s.unaided
+        reading, h, since = None, None, dt  # the tick's readings, for the bias (step 3)
         interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
         if field_diagnostic is not None:
             diagnostics.append(field_diagnostic)
@@ -174,7 +180,7 @@ class FusionModel:
                 if reading.restart:  # the fast start again: the state forgets the tilt and heading it was sure of
                     belief = model_error.with_model_error(belief, _RESTART_RAD2, _RESTART_RAD2)
                     events.append("gnss_restart")
-            gravity, accel_trusted = reading.state, reading.trusted
+            gravity = reading.state
             # an acceleration the unaided accelerometer cannot tell from gravity, as far as the estimate follows it
             unaided = learn_norm(cfg.accel, unaided, gravity, accel, interval, unknown_rotation_s > 0.0)
             if not velocity.active:
@@ -217,24 +223,26 @@ class FusionModel:
             unaided = cleared(cfg.accel, unaided)
         posterior = _multiplied(belief, exponent)
 
-        # 3. bias feedback from the tick's correction
-        if bias_feedback.may_learn(cfg.bias, rest.at_rest, accel_trusted, rate, context.prior_doubt_deg):
-            # the correction spans the ticks since the bias last learnt: in motion with GNSS, the aided readings' spacing
-            learnt_over = velocity.interval_s if velocity.active and velocity.moving else interval
-            bias = bias_feedback.learn_from_correction(cfg.bias, bias, predicted_q, posterior.mode, learnt_over)
+        # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
+        if imu:
+            bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context.prior_doubt_deg, tau, interval,
+                                                 velocity, reading, h, since, unaided, attitude_in_use(cfg.attitude, track, tick.t_ns),
+                                                 rest.at_rest, rate, self.method)
 
-        # 4. publish: widened by the model error, the error of a rate held since the last sample, an IMU kept out and,
-        # without GNSS aiding, the acceleration the accelerometer's norm reveals
-        widening = motion.hold_variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
+        # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
+        # the last sample and over the lead, an IMU kept out and, without GNSS aiding, the acceleration the norm reveals
+        ahead = lead(cfg.gyro, track, bias.estimate_rad_s, tick.t_ns, self._carry_ns)
+        widening = motion.hold_variance_rad2 + ahead.variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
         unseen_rad2 = unseen_variances_rad2(cfg.accel, unaided, field.field_ned_gauss if cfg.mag.enabled else None)
-        published = model_error.published(cfg.model_error, posterior, error_state.rate_sq, cfg.mag.enabled, widening, unseen_rad2)
+        carried = posterior if ahead.rotation is None else posterior.rotate_right(ahead.rotation)
+        published = model_error.published(cfg.model_error, carried, error_state.rate_sq, cfg.mag.enabled, widening, unseen_rad2)
 
         self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
                                   rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
                                   model_error=error_state, velocity=velocity.state, field=field, unaided=unaided)
         self.counters.update(events)
         self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
-        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters))
+        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters), self._ahead_ns)
 
     def _mag_in_state_body(self, tick: TickInput, imu: list[tuple[ImuSample, int]], body_rate: np.ndarray | None) -> np.ndarray | None:
         """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body

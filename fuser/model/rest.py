@@ -43,10 +43,12 @@ def detect_rest(params: RestSettings, state: RestState, raw_rate_rad_s: np.ndarr
 
 
 def measure_bias(params: RestSettings, rest: RestState, bias: BiasState, dt_s: float) -> BiasState:
-    """Kalman update of the bias with the low-passed gyro, whose noise is ``bias_sigma_rad_s`` counted once
-    per ``filter_s`` (readings every ``dt_s``); call only at rest."""
+    """Kalman update of the bias with the low-passed gyro, whose noise is ``bias_sigma_rad_s`` on each axis counted
+    once per ``filter_s`` (readings every ``dt_s``); call only at rest."""
     assert rest.gyro_lp_rad_s is not None
     noise = params.bias_sigma_rad_s**2 * max(params.filter_s / dt_s, 1.0)
-    gain = bias.variance_rad2_s2 / (bias.variance_rad2_s2 + noise)
-    estimate = bias.estimate_rad_s + gain * (rest.gyro_lp_rad_s - bias.estimate_rad_s)
-    return BiasState(estimate, bias.variance_rad2_s2 * (1.0 - gain))
+    covariance = bias.covariance_rad2_s2
+    gain = covariance @ np.linalg.inv(covariance + noise * np.eye(3))
+    estimate = bias.estimate_rad_s + gain @ (rest.gyro_lp_rad_s - bias.estimate_rad_s)
+    covariance = (np.eye(3) - gain) @ covariance
+    return bias.with_estimate(estimate, 0.5 * (covariance + covariance.T))

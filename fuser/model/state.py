@@ -13,7 +13,7 @@ stays valid after further ticks and can be set into another model.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 import numpy as np
@@ -65,10 +65,32 @@ class GyroState:
 
 @dataclass(frozen=True, slots=True)
 class BiasState:
-    """The gyro bias estimate (rad/s, body FRD) and the variance of each axis ((rad/s)^2)."""
+    """The gyro bias (rad/s, body FRD), a Gaussian beside the attitude (:mod:`fuser.model.bias`)."""
 
     estimate_rad_s: np.ndarray
-    variance_rad2_s2: float
+    covariance_rad2_s2: np.ndarray
+    """3x3 covariance of the estimate's error ((rad/s)^2)."""
+    rotation_lp: np.ndarray | None = None
+    """The attitude's rotation matrix (body -> world) low-passed for the motion estimate: after the tilt
+    correction's first and second stage, and after the heading correction's one (3 x 3 x 3; None until the first
+    reading)."""
+    rotated_lp_rad_s: np.ndarray | None = None
+    """The rotated estimate ``R b`` through the same stages (3 x 3)."""
+    tilt_aided: bool = False
+    """The tilt correction the stages follow is GNSS-aided (:mod:`fuser.model.velocity`), not the plain one."""
+    tilt_settled_s: float = 0.0
+    """Seconds the stages have followed that same tilt correction (they start again when it changes)."""
+
+    @property
+    def variance_rad2_s2(self) -> float:
+        """Mean per-axis variance: the uncertainty the time constants and the process noise scale with."""
+        return float(np.trace(self.covariance_rad2_s2)) / 3.0
+
+    def with_covariance(self, covariance_rad2_s2: np.ndarray) -> BiasState:
+        return replace(self, covariance_rad2_s2=covariance_rad2_s2)
+
+    def with_estimate(self, estimate_rad_s: np.ndarray, covariance_rad2_s2: np.ndarray) -> BiasState:
+        return replace(self, estimate_rad_s=estimate_rad_s, covariance_rad2_s2=covariance_rad2_s2)
 
 
 @dataclass(frozen=True, slots=True)
@@ -247,5 +269,5 @@ class FilterState:
 def initial_state(config: FuserConfig) -> FilterState:
     """The start: a uniform attitude (no prior knowledge needed), zero bias with its initial uncertainty, the
     configured reference field (or the fallback until a GNSS position)."""
-    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2),
+    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2 * np.eye(3)),
                        field=FieldState.of(config.mag))

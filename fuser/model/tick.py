@@ -52,14 +52,16 @@ class TickResult:
     """The model's answer for one tick."""
 
     published: Bingham
-    """The published attitude distribution: the filter's, carried to the tick time and widened by the
-    model error (:mod:`fuser.model_error`)."""
+    """The published attitude distribution: the filter's, carried ``ahead_ns`` past the tick
+    (:mod:`fuser.model.extrapolation`) and widened by the model error (:mod:`fuser.model_error`)."""
     uncertainty_deg: float
     """RMS angular deviation of ``published`` from its mode."""
     diagnostics: tuple[UpdateDiagnostic, ...]
     """What each update that ran did (:mod:`fuser.model.diagnostics`)."""
     counters: Mapping[str, int]
     """The model's event counters so far (gated readings, gaps, rest ticks, ...)."""
+    ahead_ns: int = 0
+    """``published`` is the attitude at the tick time plus this (ns): the estimate's stamp."""
 
     @property
     def q_wxyz(self) -> np.ndarray:

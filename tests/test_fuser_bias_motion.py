@@ -1,0 +1,202 @@
+"""The gyro bias learnt in motion (VQF's motion bias estimation): from the plain tilt correction and the heading
+correction, at any rate, each through its own measurement model; by integral feedback while GNSS aids the tilt."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from core import quaternion as quat
+from core.bingham import Bingham
+from core.observations import vector_exponent
+from drivers.samples import GnssSample
+from fuser.config import BiasSettings, FuserConfig
+from fuser.model import FusionModel
+from fuser.model.bias import SETTLE_TIME_CONSTANTS, HeadingEvidence, TiltEvidence, learn_in_motion, low_pass, reading_gain
+from fuser.model.state import BiasState
+from fusion_inputs import SRC
+from motion_inputs import fly, turning
+
+BIAS = np.array([0.012, -0.009, 0.015])
+TAU, INTERVAL = 3.0, 0.01
+
+
+def tumbling(t: float) -> np.ndarray:
+    """Never at rest and mostly faster than 0.2 rad/s (the slow-motion limit of the integral feedback this replaced:
+    learnt in motion now at any rate)."""
+    return np.array([1.2 * math.sin(0.9 * t), 0.9 * math.cos(0.6 * t + 0.3), 0.7 * math.sin(0.4 * t + 1.0) + 0.4])
+
+
+@pytest.fixture(scope="module")
+def tumble():
+    return turning(tumbling, 25.0)
+
+
+def _fixes(seconds: float, hz: float = 10.0, vel_ned_m_s=(6.0, 2.0, 0.0)):
+    """A receiver's fixes of a vehicle cruising at a constant velocity (what a sensor at the centre of rotation
+    that only turns sees: no acceleration) with 0.05 m/s of white noise (seeded) and its 0.1 m/s speed accuracy, no
+    position (the configured field stays)."""
+    rng = np.random.default_rng(7)
+    return [GnssSample(round(k / hz * 1e9), 3, tuple(np.asarray(vel_ned_m_s) + 0.05 * rng.standard_normal(3)), True, 0.1,
+                       None, None, None, False, SRC) for k in range(1, int(seconds * hz) + 1)]
+
+
+def _assert_learnt(bias: BiasState):
+    error = bias.estimate_rad_s - BIAS
+    sigma = np.sqrt(np.diag(bias.covariance_rad2_s2))
+    assert np.all(np.abs(error) < 0.4 * np.abs(BIAS)), error  # most of each axis learnt
+    assert np.all(np.abs(error) < 3.0 * sigma), (error, sigma)  # and the uncertainty says how well
+    assert np.all(sigma < 0.5 * BiasSettings().initial_sigma_rad_s)
+
+
+def test_a_bias_is_learnt_while_tumbling_without_rest(tumble):
+    rates = np.linalg.norm(tumble.rate_rad_s, axis=1)
+    assert np.mean(rates > 0.2) > 0.9 and rates.min() > 0.15  # the test's premise: motion all the time
+    model = FusionModel(FuserConfig())
+    fly(model, tumble, BIAS)
+    assert model.counters["rest_ticks"] == 0
+    _assert_learnt(model.state.bias)
+
+
+def test_while_gnss_aids_the_bias_is_learnt_by_integral_feedback_in_slow_motion(tumble):
+    """With GNSS the tilt is the aided correction's, whose response the Kalman filter does not model
+    (fuser.model.bias): the integral feedback learns instead, only in ticks slower than ``learn_max_rate_rad_s``.
+    Tumbling faster than that nearly all the time, the bias stays almost unknown, and says so; slowed to a tenth,
+    the same tumble teaches it."""
+    fast = FusionModel(FuserConfig())
+    results = fly(fast, tumble, BIAS, extra=_fixes(25.0))
+    aided = [d for _, r in results for d in r.diagnostics if d.update == "gravity" and dict(d.values).get("aiding") == "gnss"]
+    assert len(aided) > 200  # the premise: the tilt is the aided correction's (10 Hz)
+    assert fast.counters["rest_ticks"] == 0
+    assert math.sqrt(fast.state.bias.variance_rad2_s2) > 0.5 * BiasSettings().initial_sigma_rad_s
+    slow = FusionModel(FuserConfig())
+    fly(slow, turning(lambda t: 0.1 * tumbling(t), 25.0), BIAS, extra=_fixes(25.0))
+    assert slow.counters["rest_ticks"] == 0
+    estimate = slow.state.bias.estimate_rad_s
+    assert np.all(np.abs(estimate[:2] - BIAS[:2]) < 0.4 * np.abs(BIAS[:2])), estimate  # the axes the tilt sees, mostly
+    assert 0.2 * BIAS[2] < estimate[2] < BIAS[2]  # the vertical through the heading correction only, more slowly
+    assert math.sqrt(slow.state.bias.variance_rad2_s2) < 0.5 * BiasSettings().initial_sigma_rad_s
+
+
+def test_without_learning_in_motion_the_bias_stays_unknown(tumble):
+    model = FusionModel(FuserConfig(bias=BiasSettings(feedback_enabled=False)))
+    fly(model, tumble, BIAS)
+    np.testing.assert_array_equal(model.state.bias.estimate_rad_s, 0.0)
+
+
+@pytest.mark.parametrize("prior_deg, sigma_deg", [(0.5, 2.0), (1.0, 1.0), (3.0, 0.5)])
+def test_the_gain_is_the_bingham_products(prior_deg, sigma_deg):
+    """A vector reading of sigma ``s`` against a prior of angle variance ``P`` on the axes it informs moves the
+    Bingham product's mode by ``P / (P + s^2)`` of the innovation: the stage-2 gain of either tilt correction."""
+    p, s, angle = math.radians(prior_deg) ** 2, math.radians(sigma_deg), math.radians(0.2)
+    prior = Bingham.from_mode(quat.IDENTITY, [-2.0 / p, -2.0 / p, -2.0 / math.radians(10.0) ** 2])  # angle variance 2 / |z|
+    down = np.array([0.0, 0.0, 1.0])
+    measured_q = quat.from_rotvec([angle, 0.0, 0.0])
+    body = quat.rotate(quat.conjugate(measured_q), down)  # what a sensor tilted by ``angle`` about x reads
+    moved = quat.to_rotvec(prior.times_exponent(vector_exponent(body, down, s)).mode)
+    assert moved[0] / angle == pytest.approx(reading_gain(p, s), rel=0.02)
+    assert abs(moved[1]) < 1e-9 and abs(moved[2]) < 1e-6
+
+
+def _bias_state(sigma: float, estimate=(0.0, 0.0, 0.0)) -> BiasState:
+    return BiasState(np.asarray(estimate, dtype=float), sigma**2 * np.eye(3))
+
+
+def _settled(state: BiasState) -> BiasState:
+    """``state`` as if its stages had long followed the tilt correction (it may teach the bias)."""
+    return dataclasses.replace(state, tilt_settled_s=math.inf)
+
+
+def _level(state: BiasState, gain: float | None = INTERVAL / TAU) -> BiasState:
+    return low_pass(state, quat.IDENTITY, TAU, INTERVAL, False, gain, None)
+
+
+@pytest.mark.parametrize("gain", [INTERVAL / TAU, 0.25 * INTERVAL / TAU])
+def test_one_update_is_the_scalar_kalman_update_on_the_horizontal_axes(gain):
+    """Level and still in the stages (R = I): a correction ``c`` over ``T`` measures ``b_hat - c / T`` on north
+    and east with noise ``(n / m)^2 m / T``, ``m = max(tau_2, tau)``, ``tau_2 = T / k`` the correction's own time constant
+    (``tau`` for the plain update; four times longer here for a correction with a quarter of its gain, as the
+    aided one's is with noisy GNSS); hand-worked scalar Kalman updates, down untouched."""
+    noise_rad = math.radians(0.5)
+    sigma = 0.01
+    state = _settled(_level(_bias_state(sigma, (0.001, 0.002, 0.003)), gain))
+    drift = np.array([0.004, -0.002, 0.0])  # the true bias is estimate + this: the state turned by -drift T
+    posterior = quat.from_rotvec(-drift * INTERVAL)  # the correction undoes it (world frame)
+    evidence = TiltEvidence(gain, INTERVAL, noise_rad**2)
+    after = learn_in_motion(BiasSettings(), state, quat.IDENTITY, posterior, TAU, evidence, None, 0.0, 0.0)
+    m = max(INTERVAL / gain, TAU)
+    w = (noise_rad / m) ** 2 * m / INTERVAL
+    k = sigma**2 / (sigma**2 + w)
+    np.testing.assert_allclose(after.estimate_rad_s, [0.001 + k * 0.004, 0.002 - k * 0.002, 0.003], rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(np.diag(after.covariance_rad2_s2), [(1 - k) * sigma**2, (1 - k) * sigma**2, sigma**2], rtol=1e-9)
+
+
+def test_the_heading_row_is_the_scalar_kalman_update_on_down():
+    """The magnetometer's correction, one stage of its own gain against a world-fixed reference: the down row,
+    noise ``(e / m)^2 m / T``, ``m = max(tau_h, correlation)``; here the correlation (10 s) is the longer."""
+    sigma, gain, error, correlation = 0.01, 0.002, math.radians(2.0), 10.0
+    state = low_pass(_bias_state(sigma), quat.IDENTITY, TAU, INTERVAL, False, None, gain)
+    posterior = quat.from_rotvec([0.0, 0.0, -0.003 * INTERVAL])
+    after = learn_in_motion(BiasSettings(), state, quat.IDENTITY, posterior, TAU, None, HeadingEvidence(gain, INTERVAL, error, correlation),
+                            0.0, 0.0)
+    assert INTERVAL / gain < correlation
+    w = (error / correlation) ** 2 * correlation / INTERVAL
+    k = sigma**2 / (sigma**2 + w)
+    np.testing.assert_allclose(after.estimate_rad_s, [0.0, 0.0, k * 0.003], rtol=1e-9, atol=1e-15)
+
+
+def test_the_tilt_teaches_nothing_until_its_stages_have_settled():
+    """A first reading, or the switch between the plain and the GNSS-aided tilt correction, starts the stages
+    again: for two time constants the correction is the start's transient, not the bias's response."""
+    posterior = quat.from_rotvec([-0.004 * INTERVAL, 0.0, 0.0])
+    evidence = TiltEvidence(INTERVAL / TAU, INTERVAL, math.radians(0.5) ** 2)
+    state = low_pass(_settled(_level(_bias_state(0.01))), quat.IDENTITY, TAU, INTERVAL, True, INTERVAL / TAU, None)  # the aiding starts
+    assert state.tilt_aided and state.tilt_settled_s == 0.0
+    steps = 0
+    while learn_in_motion(BiasSettings(), state, quat.IDENTITY, posterior, TAU, evidence, None, 0.0, 0.0).estimate_rad_s[0] == 0.0:
+        state = low_pass(state, quat.IDENTITY, TAU, INTERVAL, True, INTERVAL / TAU, None)
+        steps += 1
+    assert steps * INTERVAL == pytest.approx(SETTLE_TIME_CONSTANTS * TAU, abs=1.5 * INTERVAL)
+    assert _level(state).tilt_settled_s == 0.0  # the aiding ends
+
+
+def test_the_rotation_rate_makes_the_correction_a_poorer_measurement():
+    """A gyro scale error ``s`` turns a rate ``w`` into a correction as a bias ``s w`` would: the gain falls."""
+    state = _settled(_level(_bias_state(0.01)))
+    posterior = quat.from_rotvec([-0.004 * INTERVAL, 0.0, 0.0])
+    evidence = TiltEvidence(INTERVAL / TAU, INTERVAL, math.radians(0.5) ** 2)
+    slow = learn_in_motion(BiasSettings(), state, quat.IDENTITY, posterior, TAU, evidence, None, 0.0, 0.01)
+    fast = learn_in_motion(BiasSettings(), state, quat.IDENTITY, posterior, TAU, evidence, None, 5.0, 0.01)
+    assert 0.0 < fast.estimate_rad_s[0] < 0.2 * slow.estimate_rad_s[0]
+
+
+def test_learning_in_motion_never_claims_more_than_the_floor_nor_loses_a_rest_measurement():
+    params = BiasSettings(floor_sigma_rad_s=0.003)
+    posterior = quat.from_rotvec([-1e-5, 0.0, 0.0])
+    evidence = TiltEvidence(INTERVAL / TAU, INTERVAL, math.radians(0.5) ** 2)
+    for sigma, least in ((0.003, 0.003), (0.0005, 0.0005)):  # at the floor; measured better at rest
+        state = _settled(_level(_bias_state(sigma)))
+        for _ in range(200):
+            state = learn_in_motion(params, state, quat.IDENTITY, posterior, TAU, evidence, None, 0.0, 0.0)
+        assert math.sqrt(state.variance_rad2_s2) == pytest.approx(least, rel=1e-9)
+
+
+def test_a_body_that_keeps_turning_is_measured_through_the_low_passed_rotation():
+    """Turning at 1 rad/s about down for one tilt time constant, a bias on body x shows in the north and east
+    corrections as the low-passed rotation predicts: the measurement row is LP2(R), not the current R; a gated
+    reading (no gain) holds the second stage."""
+    tau = 1.0
+    state = _bias_state(0.01)
+    for k in range(100):
+        state = low_pass(state, quat.from_rotvec([0.0, 0.0, k * INTERVAL]), tau, INTERVAL, False, INTERVAL / tau, None)
+    # two first-order low-passes in series of R(t) (hand-worked recursion, independent of low_pass)
+    r1 = r2 = quat.to_matrix(quat.IDENTITY)
+    for k in range(1, 100):
+        r = quat.to_matrix(quat.from_rotvec([0.0, 0.0, k * INTERVAL]))
+        r1 = r1 + INTERVAL / tau * (r - r1)
+        r2 = r2 + INTERVAL / tau * (r1 - r2)
+    np.testing.assert_allclose(state.rotation_lp[1], r2, atol=1e-12)
+    assert abs(quat.to_matrix(quat.from_rotvec([0.0, 0.0, 0.99]))[1, 0] - state.rotation_lp[1][1, 0]) > 0.5  # far from the current R
+    held = low_pass(state, quat.from_rotvec([0.0, 0.0, 1.0]), tau, INTERVAL, False, None, None)
+    np.testing.assert_array_equal(held.rotation_lp[1], state.rotation_lp[1])
