@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import base64
 import json
-import math
 import struct
 import time
 from pathlib import Path
@@ -24,6 +23,7 @@ from drivers.samples import AttitudeSample, GnssSample, ImuSample  # noqa: E402
 from fuser.codec import encode_sample  # noqa: E402
 from fuser.foxglove_live import FoxgloveLive  # noqa: E402
 from fuser.record import McapRecorder, read_log  # noqa: E402
+from covariance_checks import assert_covariance_matches_rms  # noqa: E402
 
 LOGS = Path(__file__).resolve().parent.parent / "logs"
 
@@ -159,11 +159,7 @@ def test_a_foxglove_client_subscribes_and_decodes_every_channel(offered: list[st
             elif topic == "/uncertainty":
                 assert m["rms_deg"] == obj.uncertainty_deg
                 cov = np.reshape(m["covariance_ned_rad2"], (3, 3))
-                # the covariance is the tangent space's, 4 E[sin^2(theta/2)] = E[theta^2 - theta^4/12 + ...], the RMS the
-                # angle's: equal while small, the covariance's smaller by about u^2/14 (u the RMS angle in rad, Gaussian
-                # 3-D errors: E[theta^4] = 5/3 E[theta^2]^2) at a cold start's 40 deg
-                u = math.radians(obj.uncertainty_deg)
-                assert u * (1.0 - u * u / 12.0) - 1e-9 <= np.sqrt(np.trace(cov)) <= u * 1.001 + 1e-9, (np.degrees(np.sqrt(np.trace(cov))), obj.uncertainty_deg)
+                assert_covariance_matches_rms(cov, obj.uncertainty_deg)
                 np.testing.assert_allclose(np.radians(m["sigma_ned_deg"]) ** 2, np.diag(cov), rtol=1e-12)
             elif topic.startswith("/input/"):
                 assert m == json.loads(json.dumps(encode_sample(obj, t)))
