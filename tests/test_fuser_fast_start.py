@@ -49,8 +49,8 @@ def test_a_state_converged_on_the_banks_vertical_starts_again_when_gnss_shows_it
     beyond the raw gate ``3 hypot(accel.sigma_rad, GNSS noise, tilt doubt)`` = 3 hypot(5.73, 1.52, 2) = 18.8 deg
     (the noise 0.3 m/s^2 over ``|g e_z - a|`` = 11.3 m/s^2): the fast start runs again (unconverged, the reading
     measuring ``g e_z - a`` with that sigma, applied at once)."""
-    reading = update_gravity(AccelSettings(), UpdateSettings(), _converged_level(), TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01,
-                             GNSS, 2.0)
+    reading = update_gravity(AccelSettings(), UpdateSettings(), _converged_level(), TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01, 2.0,
+                             gnss=GNSS)
     assert reading.restart and reading.apply_now
     assert not reading.state.converged and reading.state.gnss_checked and reading.state.accel_lp_m_s2 is None
     assert reading.diagnostic.innovation_deg == pytest.approx(30.0, abs=1e-9)
@@ -64,13 +64,13 @@ def test_a_state_converged_on_the_banks_vertical_starts_again_when_gnss_shows_it
 
 def test_a_state_that_agrees_with_gnss_is_kept_and_checked_once():
     state = GravityState(accel_lp_m_s2=LIFT_BODY.copy(), converged=True, tilt_known=True)
-    agreeing = update_gravity(AccelSettings(), UpdateSettings(), state, TICK, LIFT_BODY, 3.0, TRUTH, 0.01, GNSS, 2.0)
+    agreeing = update_gravity(AccelSettings(), UpdateSettings(), state, TICK, LIFT_BODY, 3.0, TRUTH, 0.01, 2.0, gnss=GNSS)
     assert not agreeing.restart and agreeing.state.converged and agreeing.state.gnss_checked
     # once checked, a later disagreement is the gravity update's own business (its gate), not a new start
-    later = update_gravity(AccelSettings(), UpdateSettings(), agreeing.state, TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01, GNSS, 2.0)
+    later = update_gravity(AccelSettings(), UpdateSettings(), agreeing.state, TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01, 2.0, gnss=GNSS)
     assert not later.restart
     # no GNSS: nothing to check against
-    alone = update_gravity(AccelSettings(), UpdateSettings(), _converged_level(), TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01)
+    alone = update_gravity(AccelSettings(), UpdateSettings(), _converged_level(), TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01, 2.0)
     assert not alone.restart and not alone.state.gnss_checked
 
 
@@ -124,3 +124,17 @@ def test_the_pairs_of_fixes_are_what_raw_readings_measure_until_they_are_old():
     # a third fix: the low-pass over gnss.raw_lowpass_s (alpha = 0.1 / 0.3), toward a = (0, 2, 0)
     three = _paired([(10.0, 0.0, 0.0), (10.0, 0.5, 0.0), (10.0, 0.7, 0.0)], 0.05)
     np.testing.assert_allclose(three.recent_world_m_s2, [0.0, -5.0 + (1.0 / 3.0) * (5.0 - 2.0), G], atol=1e-9)
+
+
+def test_without_a_heading_measurement_the_tilt_alone_decides_convergence():
+    """6-D (the magnetometer off): the heading is never known, so the whole doubt never falls below
+    ``updates.converged_deg`` and raw readings, linear accelerations and all, would be taken for ever; the tilt's
+    doubt decides instead. With a heading measured the whole doubt does, as before."""
+    level = GravityState(tilt_known=True)
+    unsure_heading = TickContext(dt_s=0.01, process_variance_rad2=1e-6, prior_doubt_deg=90.0)
+    at_rest = np.array([0.0, 0.0, -G])
+    six_d = update_gravity(AccelSettings(), UpdateSettings(), level, unsure_heading, at_rest, 3.0, quat.IDENTITY.copy(), 0.01, 2.0,
+                           heading_measured=False)
+    assert six_d.state.converged and six_d.state.accel_lp_m_s2 is not None
+    nine_d = update_gravity(AccelSettings(), UpdateSettings(), level, unsure_heading, at_rest, 3.0, quat.IDENTITY.copy(), 0.01, 2.0)
+    assert not nine_d.state.converged and nine_d.state.accel_lp_m_s2 is None

@@ -173,10 +173,9 @@ class FusionModel:
             if velocity.active:
                 reading = update_gravity_aided(cfg.accel, cfg.gnss, cfg.updates, gravity, velocity, context, tau, predicted_q)
             else:
-                gnss_world = raw_world(cfg.gnss, cfg.accel, velocity.state, tick.t_ns)
-                checked = gnss_world is None or gravity.gnss_checked
-                reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval, gnss_world,
-                                         0.0 if checked else tilt_doubt_deg(prediction.attitude, self.method))
+                reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval,
+                                         tilt_doubt_deg(prediction.attitude, self.method), cfg.mag.enabled,
+                                         raw_world(cfg.gnss, cfg.accel, velocity.state, tick.t_ns))
                 if reading.restart:  # the fast start again: the state forgets the tilt and heading it was sure of
                     belief = model_error.with_model_error(belief, _RESTART_RAD2, _RESTART_RAD2)
                     events.append("gnss_restart")

@@ -113,12 +113,14 @@ def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_varianc
 
 
 def update_gravity(params: AccelSettings, updates: UpdateSettings, state: GravityState, tick: TickContext, accel_body_m_s2: np.ndarray,
-                   tau_s: float, predicted_q: np.ndarray, interval_s: float, gnss: GnssWorld | None = None,
-                   prior_tilt_deg: float = 0.0) -> GravityReading:
+                   tau_s: float, predicted_q: np.ndarray, interval_s: float, prior_tilt_deg: float, heading_measured: bool = True,
+                   gnss: GnssWorld | None = None) -> GravityReading:
     """The gravity update of one tick from the tick's mean specific force in the state's body frame, the
-    readings ``interval_s`` after the previous ones; ``gnss`` (:func:`fuser.model.velocity.raw_world`) what a raw
-    reading measures in the world while GNSS fixes come, ``g e_z - a`` (module docstring), and ``prior_tilt_deg``
-    the prediction's tilt doubt, against which the first such reading is checked."""
+    readings ``interval_s`` after the previous ones; ``prior_tilt_deg`` the prediction's tilt doubt. The state
+    has converged once its doubt is below ``updates.converged_deg``: the whole doubt's, or without a heading
+    measurement (6-D: the magnetometer off) the tilt's, as the heading is never known and the raw readings would
+    be taken for ever. ``gnss`` (:func:`fuser.model.velocity.raw_world`) what a raw reading measures in the world
+    while GNSS fixes come, ``g e_z - a`` (module docstring)."""
     gnss_world_m_s2 = None if gnss is None else gnss.vector_m_s2
     raw_sigma = params.sigma_rad if gnss is None else math.hypot(params.sigma_rad, gnss.noise_m_s2 / math.sqrt(float(gnss_world_m_s2 @ gnss_world_m_s2)))
     to_inertial = quat.to_matrix(state.q_strapdown)
@@ -132,7 +134,8 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
         state = dataclasses.replace(state, accel_lp_m_s2=None, converged=False, raw_mean_m_s2=None, raw_s=0.0)
     if gnss_world_m_s2 is not None:
         state = dataclasses.replace(state, gnss_checked=True)
-    converged = not restart and (state.converged or tick.prior_doubt_deg < updates.converged_deg)
+    doubt_deg = tick.prior_doubt_deg if heading_measured else prior_tilt_deg
+    converged = not restart and (state.converged or doubt_deg < updates.converged_deg)
     raw_mean, raw_s = state.raw_mean_m_s2, state.raw_s
     if not converged:
         lowpassed = None
