@@ -83,6 +83,9 @@ def test_estimates_reach_another_process_intact_across_restarts(publisher: Zenoh
     victim.communicate()
     for est in estimates(20, seed=3):
         publisher.publish_estimate(est)
+    # the next subscriber must be the one matched: the victim's match can outlive it for a moment, and estimates
+    # published then would go to nobody (the test failed so on a loaded machine)
+    wait_for(lambda: not publisher.has_subscribers)
 
     second = estimates(30, seed=4)
     assert send_to(start_example(endpoint, 30), publisher, second) == second
