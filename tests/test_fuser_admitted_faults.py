@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fault_flights import FAULTS, RECOVERED_DEG
+from fault_flights import FAULTS, RECOVERED_DEG, saturation
 
 COUNTER = {"saturation": "gyro_saturated", "rogue_imu": "imu_disagree", "attitude_jump": "attitude_gated_jump",
            "saturation_in_turn": "gyro_saturated"}
@@ -58,5 +58,14 @@ def test_after_it_the_published_uncertainty_still_covers_the_error(run):
     the estimate back: before the unseen tilt was kept through them (fuser/model/unaided.py) the estimate was
     15 deg off reporting 5 for 2.6 s (seeds 0-3, with and without GNSS: benchmarks/faults.py)."""
     _, r = run
+    after = r.window(r.end_s, r.scored_until_s)
+    assert np.all(r.error_deg[after] <= 2.0 * r.uncertainty_deg[after]), r.summary()
+
+
+def test_the_recovery_from_a_saturated_gyro_teaches_the_bias_nothing():
+    """Seed 3's hover (its gyro bias 1.5 deg/s, not yet learnt when the gyro saturates): the corrections while
+    the attitude re-converges are the recovery's, not the bias's. Learnt from, they took the z bias 1.4 deg/s off
+    within 2 s and the estimate drifted 9 deg off reporting 4 (2.95 s above twice the reported uncertainty)."""
+    r = saturation(seed=3)
     after = r.window(r.end_s, r.scored_until_s)
     assert np.all(r.error_deg[after] <= 2.0 * r.uncertainty_deg[after]), r.summary()

@@ -226,7 +226,7 @@ class FusionModel:
         if imu:
             bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context.prior_doubt_deg, tau, interval,
                                                  velocity, reading, h, since, unaided, attitude_in_use(cfg.attitude, track, tick.t_ns),
-                                                 rest.at_rest, rate, self.method)
+                                                 rest.at_rest, rate, self.method, unknown_rotation_s > 0.0 or not gravity.converged)
 
         # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
         # the last sample and over the lead, an IMU kept out and, without GNSS aiding, the acceleration the norm reveals
