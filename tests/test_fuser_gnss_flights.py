@@ -101,10 +101,12 @@ def test_without_gnss_the_unseen_turn_widens_the_uncertainty(flown):
     (``accel.unaided_learnt_tolerance_fraction`` and the window's ``2 g dv / T``), and the learnt bias makes the filter
     surer of the rest."""
     name, _, (alone, level_alone) = flown
-    if name != "fixedwing":
-        pytest.xfail(f"{name} without GNSS: under-covered (docstring)")
-    assert np.mean(level_alone <= 0.9) >= 0.7, np.mean(level_alone <= 0.9)
-    assert alone["uncertainty"] >= alone["total"], alone
+    coverage = float(np.mean(level_alone <= 0.9))
+    met = coverage >= 0.7 and alone["uncertainty"] >= alone["total"]
+    if name != "fixedwing":  # a strict xfail: the gap is checked, and a flight that meets it fails here
+        assert not met, f"{name} without GNSS now meets it ({coverage:.2f}, {alone}): make it a plain assertion"
+        pytest.xfail(f"{name} without GNSS: under-covered, {coverage:.0%} (docstring)")
+    assert met, (coverage, alone)
 
 
 @pytest.mark.xfail(strict=True, reason="over-covered (100 %): the heading floor and the bias floor are fitted on BROAD's "
