@@ -32,7 +32,7 @@ LIFT_BODY = np.array([0.0, 0.0, -G / math.cos(PHI)])  # the accelerometer's read
 GNSS_WORLD = np.array([0.0, -G * math.tan(PHI), G])  # g e_z - a
 GNSS = GnssWorld(GNSS_WORLD, 0.3)  # its noise, m/s^2: 1.7 deg of its direction
 FIELD_NED = (0.2, 0.0, 0.4)
-TICK = TickContext(dt_s=0.01, process_variance_rad2=1e-6, prior_doubt_deg=3.0)
+TICK = TickContext(dt_s=0.01, process_variance_rad2=1e-6, prior_doubt_deg=3.0, prior_tilt_doubt_deg=2.0)
 
 
 def test_the_closed_form_turn():
@@ -49,7 +49,7 @@ def test_a_state_converged_on_the_banks_vertical_starts_again_when_gnss_shows_it
     beyond the raw gate ``3 hypot(accel.sigma_rad, GNSS noise, tilt doubt)`` = 3 hypot(5.73, 1.52, 2) = 18.8 deg
     (the noise 0.3 m/s^2 over ``|g e_z - a|`` = 11.3 m/s^2): the fast start runs again (unconverged, the reading
     measuring ``g e_z - a`` with that sigma, applied at once)."""
-    reading = update_gravity(AccelSettings(), UpdateSettings(), _converged_level(), TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01, 2.0,
+    reading = update_gravity(AccelSettings(), UpdateSettings(), _converged_level(), TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01,
                              gnss=GNSS)
     assert reading.restart and reading.apply_now
     assert not reading.state.converged and reading.state.gnss_checked and reading.state.accel_lp_m_s2 is None
@@ -64,13 +64,13 @@ def test_a_state_converged_on_the_banks_vertical_starts_again_when_gnss_shows_it
 
 def test_a_state_that_agrees_with_gnss_is_kept_and_checked_once():
     state = GravityState(accel_lp_m_s2=LIFT_BODY.copy(), converged=True, tilt_known=True)
-    agreeing = update_gravity(AccelSettings(), UpdateSettings(), state, TICK, LIFT_BODY, 3.0, TRUTH, 0.01, 2.0, gnss=GNSS)
+    agreeing = update_gravity(AccelSettings(), UpdateSettings(), state, TICK, LIFT_BODY, 3.0, TRUTH, 0.01, gnss=GNSS)
     assert not agreeing.restart and agreeing.state.converged and agreeing.state.gnss_checked
     # once checked, a later disagreement is the gravity update's own business (its gate), not a new start
-    later = update_gravity(AccelSettings(), UpdateSettings(), agreeing.state, TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01, 2.0, gnss=GNSS)
+    later = update_gravity(AccelSettings(), UpdateSettings(), agreeing.state, TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01, gnss=GNSS)
     assert not later.restart
     # no GNSS: nothing to check against
-    alone = update_gravity(AccelSettings(), UpdateSettings(), _converged_level(), TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01, 2.0)
+    alone = update_gravity(AccelSettings(), UpdateSettings(), _converged_level(), TICK, LIFT_BODY, 3.0, quat.IDENTITY.copy(), 0.01)
     assert not alone.restart and not alone.state.gnss_checked
 
 
@@ -131,10 +131,10 @@ def test_without_a_heading_measurement_the_tilt_alone_decides_convergence():
     ``updates.converged_deg`` and raw readings, linear accelerations and all, would be taken for ever; the tilt's
     doubt decides instead. With a heading measured the whole doubt does, as before."""
     level = GravityState(tilt_known=True)
-    unsure_heading = TickContext(dt_s=0.01, process_variance_rad2=1e-6, prior_doubt_deg=90.0)
+    unsure_heading = TickContext(dt_s=0.01, process_variance_rad2=1e-6, prior_doubt_deg=90.0, prior_tilt_doubt_deg=2.0)
     at_rest = np.array([0.0, 0.0, -G])
-    six_d = update_gravity(AccelSettings(), UpdateSettings(), level, unsure_heading, at_rest, 3.0, quat.IDENTITY.copy(), 0.01, 2.0,
+    six_d = update_gravity(AccelSettings(), UpdateSettings(), level, unsure_heading, at_rest, 3.0, quat.IDENTITY.copy(), 0.01,
                            heading_measured=False)
     assert six_d.state.converged and six_d.state.accel_lp_m_s2 is not None
-    nine_d = update_gravity(AccelSettings(), UpdateSettings(), level, unsure_heading, at_rest, 3.0, quat.IDENTITY.copy(), 0.01, 2.0)
+    nine_d = update_gravity(AccelSettings(), UpdateSettings(), level, unsure_heading, at_rest, 3.0, quat.IDENTITY.copy(), 0.01)
     assert not nine_d.state.converged and nine_d.state.accel_lp_m_s2 is None

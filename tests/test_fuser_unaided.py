@@ -122,8 +122,8 @@ def test_an_aided_reading_shrinks_the_unseen_tilt_by_its_own_gain():
 
 
 def _gravity_tick(state: GravityState, f_body: np.ndarray, prior_doubt_deg: float, interval_s: float = 0.01):
-    tick = TickContext(dt_s=interval_s, process_variance_rad2=1e-6, prior_doubt_deg=prior_doubt_deg)
-    return update_gravity(AccelSettings(), UpdateSettings(), state, tick, f_body, 3.0, quat.IDENTITY.copy(), interval_s, prior_doubt_deg)
+    tick = TickContext(dt_s=interval_s, process_variance_rad2=1e-6, prior_doubt_deg=prior_doubt_deg, prior_tilt_doubt_deg=prior_doubt_deg)
+    return update_gravity(AccelSettings(), UpdateSettings(), state, tick, f_body, 3.0, quat.IDENTITY.copy(), interval_s)
 
 
 def test_raw_readings_are_followed_at_once_and_the_low_pass_starts_from_their_mean():

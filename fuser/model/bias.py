@@ -117,13 +117,13 @@ import numpy as np
 
 from core import quaternion as quat
 from core.bingham import Bingham
-from core.normalization import Method
 from fuser.config import BiasSettings, FuserConfig
 from fuser.model.gravity import GravityReading
 from fuser.model.heading import HeadingReading
 from fuser.model.state import BiasState, UnaidedState
 from fuser.model.unaided import unseen_variances_rad2
-from fuser.model.velocity import VelocityTrack, tilt_doubt_deg
+from fuser.model.tick import TickContext
+from fuser.model.velocity import VelocityTrack
 
 __all__ = ["SETTLE_TIME_CONSTANTS", "HeadingEvidence", "TiltEvidence", "integral_feedback", "learn_from_tick", "learn_in_motion",
            "low_pass", "may_learn", "propagate", "reading_gain"]
@@ -255,13 +255,14 @@ def may_learn(params: BiasSettings, at_rest: bool, prior_doubt_deg: float) -> bo
     return params.feedback_enabled and not at_rest and prior_doubt_deg <= params.learn_max_uncertainty_deg
 
 
-def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, posterior_q: np.ndarray, prior_doubt_deg: float,
+def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, posterior_q: np.ndarray, tick: TickContext,
                     tilt_tau_s: float, interval_s: float, velocity: VelocityTrack, tilt: GravityReading | None,
                     heading: HeadingReading | None, heading_interval_s: float, unaided: UnaidedState, attitude_in_use: bool,
-                    at_rest: bool, rate_rad_s: float, method: Method, restarted: bool = False) -> BiasState:
+                    at_rest: bool, rate_rad_s: float, restarted: bool = False) -> BiasState:
     """One tick of bias learning in motion from the tick's readings (``tilt``: the gravity update's, plain or aided,
     ``heading``: the magnetometer's, ``heading_interval_s`` after its previous one; None: none this tick), the
-    prediction ``predicted`` they corrected into ``posterior_q``, ``interval_s`` after the previous IMU readings.
+    prediction ``predicted`` they corrected into ``posterior_q`` (``tick``: its doubts), ``interval_s`` after the previous
+    IMU readings.
 
     The stages follow the rotation (:func:`low_pass`, with each fused reading's own gain). Without GNSS aiding the
     plain tilt and the heading corrections teach the bias (:func:`learn_in_motion`) where :func:`may_learn`, from a
@@ -277,7 +278,8 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     aided = velocity.active
     if restarted:  # a broken strapdown frame or a fast start: the corrections that follow are the recovery's, not the bias's
         return replace(state, rotation_lp=None, rotated_lp_rad_s=None)
-    tilt_variance = math.radians(tilt_doubt_deg(predicted, method)) ** 2
+    prior_doubt_deg = tick.prior_doubt_deg
+    tilt_variance = math.radians(tick.prior_tilt_doubt_deg) ** 2
     tilt_gain = heading_gain = None
     if tilt is not None and tilt.exponent is not None and tilt.diagnostic is not None and tilt.diagnostic.sigma_deg is not None:
         tilt_gain = reading_gain(0.5 * tilt_variance, math.radians(tilt.diagnostic.sigma_deg))  # per horizontal axis

@@ -145,7 +145,8 @@ class FusionModel:
             error_state = model_error.observe_rate(s.model_error, rate, dt, cfg.accel.lowpass_s)
         unknown_rotation_s = motion.gap_s + motion.saturated_s  # of the tick without a usable rate: the strapdown frame breaks
         gravity = turn_frame(s.gravity, prediction.rotation, unknown_rotation_s)
-        context = TickContext(dt, prediction.variance_rad2, rms_angle_deg(prediction.attitude, self.method))
+        context = TickContext(dt, prediction.variance_rad2, rms_angle_deg(prediction.attitude, self.method),
+                              tilt_doubt_deg(prediction.attitude, self.method))
         predicted_q = prediction.attitude.mode
         raw_rate = motion.raw_rate_rad_s
         body_rate = None if raw_rate is None else raw_rate - bias.estimate_rad_s
@@ -173,8 +174,7 @@ class FusionModel:
             if velocity.active:
                 reading = update_gravity_aided(cfg.accel, cfg.gnss, cfg.updates, gravity, velocity, context, tau, predicted_q)
             else:
-                reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval,
-                                         tilt_doubt_deg(prediction.attitude, self.method), cfg.mag.enabled,
+                reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval, cfg.mag.enabled,
                                          raw_world(cfg.gnss, cfg.accel, velocity.state, tick.t_ns))
                 if reading.restart:  # the fast start again: the state forgets the tilt and heading it was sure of
                     belief = model_error.with_model_error(belief, _RESTART_RAD2, _RESTART_RAD2)
@@ -186,7 +186,7 @@ class FusionModel:
                 target, follow_s = unaided_target(cfg.accel, gravity, interval, tau)
                 unaided = followed(cfg.accel, unaided, target, interval, follow_s)
             elif reading.tilt_bound_rad is not None and reading.diagnostic is not None and reading.diagnostic.sigma_deg is not None:
-                unaided = corrected(cfg.accel, unaided, tilt_doubt_deg(prediction.attitude, self.method), reading.diagnostic.sigma_deg,
+                unaided = corrected(cfg.accel, unaided, context.prior_tilt_doubt_deg, reading.diagnostic.sigma_deg,
                                     reading.tilt_bound_rad)
             if reading.diagnostic is not None:
                 diagnostics.append(reading.diagnostic)
@@ -224,9 +224,9 @@ class FusionModel:
 
         # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
         if imu:
-            bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context.prior_doubt_deg, tau, interval,
+            bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context, tau, interval,
                                                  velocity, reading, h, since, unaided, attitude_in_use(cfg.attitude, track, tick.t_ns),
-                                                 rest.at_rest, rate, self.method, unknown_rotation_s > 0.0 or not gravity.converged)
+                                                 rest.at_rest, rate, unknown_rotation_s > 0.0 or not gravity.converged)
 
         # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
         # the last sample and over the lead, an IMU kept out and, without GNSS aiding, the acceleration the norm reveals

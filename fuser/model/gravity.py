@@ -113,10 +113,10 @@ def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_varianc
 
 
 def update_gravity(params: AccelSettings, updates: UpdateSettings, state: GravityState, tick: TickContext, accel_body_m_s2: np.ndarray,
-                   tau_s: float, predicted_q: np.ndarray, interval_s: float, prior_tilt_deg: float, heading_measured: bool = True,
+                   tau_s: float, predicted_q: np.ndarray, interval_s: float, heading_measured: bool = True,
                    gnss: GnssWorld | None = None) -> GravityReading:
     """The gravity update of one tick from the tick's mean specific force in the state's body frame, the
-    readings ``interval_s`` after the previous ones; ``prior_tilt_deg`` the prediction's tilt doubt. The state
+    readings ``interval_s`` after the previous ones. The state
     has converged once its doubt is below ``updates.converged_deg``: the whole doubt's, or without a heading
     measurement (6-D: the magnetometer off) the tilt's, as the heading is never known and the raw readings would
     be taken for ever. ``gnss`` (:func:`fuser.model.velocity.raw_world`) what a raw reading measures in the world
@@ -129,12 +129,12 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     predicted_down = rotation[2]  # R^T e_z: world down in the body
     # once, at the first GNSS acceleration: what the state measured before it took every raw reading for down
     restart = gnss_world_m_s2 is not None and not state.gnss_checked and state.tilt_known and _disagrees(
-        raw_sigma, updates, prior_tilt_deg, rotation @ -accel_body_m_s2, gnss_world_m_s2)
+        raw_sigma, updates, tick.prior_tilt_doubt_deg, rotation @ -accel_body_m_s2, gnss_world_m_s2)
     if restart:  # converged on raw readings the GNSS acceleration shows wrong (a start in a turn): the fast start again
         state = dataclasses.replace(state, accel_lp_m_s2=None, converged=False, raw_mean_m_s2=None, raw_s=0.0)
     if gnss_world_m_s2 is not None:
         state = dataclasses.replace(state, gnss_checked=True)
-    doubt_deg = tick.prior_doubt_deg if heading_measured else prior_tilt_deg
+    doubt_deg = tick.prior_doubt_deg if heading_measured else tick.prior_tilt_doubt_deg
     converged = not restart and (state.converged or doubt_deg < updates.converged_deg)
     raw_mean, raw_s = state.raw_mean_m_s2, state.raw_s
     if not converged:

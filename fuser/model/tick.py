@@ -45,6 +45,9 @@ class TickContext:
     """Per-axis angle variance of the tick's process noise (the updates' correction time constants scale with it)."""
     prior_doubt_deg: float
     """RMS uncertainty of the predicted state: the state's share of every innovation gate."""
+    prior_tilt_doubt_deg: float
+    """Its tilt's alone (:func:`fuser.model.velocity.tilt_doubt_deg`): the gravity update's convergence and checks,
+    the gains of the tilt corrections the bias learns from."""
 
 
 @dataclass(frozen=True, slots=True)

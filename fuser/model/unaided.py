@@ -100,16 +100,21 @@ def _baseline_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
     return excess_norm_sq_m2_s4(params, state.norm_mean_m_s2)
 
 
+def _scale_error_m2_s4(params: AccelSettings, fraction: float) -> float:
+    """The excess ``|f|^2 - g^2`` a norm ``fraction`` too high makes: ``((1 + fraction)^2 - 1) g^2``."""
+    return ((1.0 + fraction) ** 2 - 1.0) * params.gravity_m_s2**2
+
+
 def _allowed_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
     """The excess over the baseline the sensor itself may make: ``((1 + t)^2 - 1) g^2`` for its scale error ``t``
     (``accel.unaided_norm_tolerance_fraction`` until its norm is learnt), and, while the window is short, what a
     vertical speed change ``dv`` over it (``accel.unaided_speed_change_m_s``) puts into the learnt norm, ``2 g dv / T``."""
     g = params.gravity_m_s2
-    initial = ((1.0 + params.unaided_norm_tolerance_fraction) ** 2 - 1.0) * g**2
+    initial = _scale_error_m2_s4(params, params.unaided_norm_tolerance_fraction)
     if state.norm_mean_m_s2 is None:
         return initial
     window_s = min(state.norm_mean_s, params.unaided_norm_window_s)
-    learnt = ((1.0 + params.unaided_learnt_tolerance_fraction) ** 2 - 1.0) * g**2 + 2.0 * g * params.unaided_speed_change_m_s / window_s
+    learnt = _scale_error_m2_s4(params, params.unaided_learnt_tolerance_fraction) + 2.0 * g * params.unaided_speed_change_m_s / window_s
     return min(initial, learnt)
 
 
@@ -117,8 +122,7 @@ def _hidden_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
     """The largest excess read as no acceleration: the learnt norm's plus its tolerance, never more than the
     unlearnt tolerance's alone. Learning the norm may only reveal: a window flown in a turn throughout (a start
     mid-turn, a long loiter) learns the turn's norm, not the sensor's, and must not hide the turn."""
-    initial = ((1.0 + params.unaided_norm_tolerance_fraction) ** 2 - 1.0) * params.gravity_m_s2**2
-    return min(initial, _baseline_m2_s4(params, state) + _allowed_m2_s4(params, state))
+    return min(_scale_error_m2_s4(params, params.unaided_norm_tolerance_fraction), _baseline_m2_s4(params, state) + _allowed_m2_s4(params, state))
 
 
 def _nothing_unseen_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
