@@ -131,8 +131,9 @@ class LiveRunner:
         """Last sink of every estimate: latency from due time, overrun if the next tick is already due."""
         now = self.clock.now_ns()
         loop = self.pipeline.loop
-        self.latencies_ns.append(now - (est.t_ns + loop.latency_ns))
-        if now > est.t_ns + loop.period_ns + loop.latency_ns:
+        due = loop.due_ns(est)
+        self.latencies_ns.append(now - due)
+        if now > due + loop.period_ns:
             self.counters["overruns"] += 1
 
     def status(self) -> dict:

@@ -61,6 +61,7 @@ from drivers.samples import AttitudeSample, GnssSample, ImuSample, Sample, Sourc
 from fuser.codec import Estimate
 from fuser.config import FuserConfig, LatencySettings
 from fuser.model import FusionModel, TickInput, TickResult
+from fuser.model.extrapolation import ahead_ns
 
 __all__ = ["FusionLoop", "Timeline", "estimate_of", "stream_of", "vehicle_of"]
 
@@ -195,11 +196,18 @@ class FusionLoop:
         self._vehicles: dict[str, tuple] = {}
         """Per transport, the vehicle fused: the one of its first IMU sample."""
         self._latest_diagnostics: dict[str, dict[str, Any]] = {}
+        self._ahead_ns = ahead_ns(config)
 
     @property
     def latency_ns(self) -> int:
         """How long the last tick waited after its time for samples in flight (:class:`Timeline`)."""
         return self._wait_ns
+
+    def due_ns(self, estimate: Estimate) -> int:
+        """The clock time the tick that made ``estimate`` was due: its tick time (the estimate is stamped
+        ``ahead_ns`` after it, :mod:`fuser.model.extrapolation`) plus the wait it ran under. For ticks run
+        together to catch up, the last one's wait (the smallest): never later than the tick's real due time."""
+        return estimate.t_ns - self._ahead_ns + self._wait_ns
 
     @property
     def next_due_ns(self) -> int | None:
