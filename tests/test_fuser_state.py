@@ -69,3 +69,21 @@ def test_only_a_filter_state_can_be_set():
     with pytest.raises(TypeError, match="FilterState"):
         FusionModel(FuserConfig()).state = {"attitude": None}  # type: ignore[assignment]
     assert isinstance(FusionModel(FuserConfig()).state, FilterState)
+
+
+def test_a_bias_state_with_a_new_estimate_keeps_every_other_field():
+    """``with_estimate`` builds the state field by field (not by ``dataclasses.replace``): every field it is not
+    given must come through, including any added later."""
+    import dataclasses
+
+    from fuser.model.state import BiasState
+
+    old = BiasState(np.array([0.1, 0.2, 0.3]), np.diag([1e-4, 2e-4, 3e-4]), np.arange(27.0).reshape(3, 3, 3),
+                    np.arange(9.0).reshape(3, 3), True, 4.5)
+    names = {f.name for f in dataclasses.fields(BiasState)}
+    assert names == {"estimate_rad_s", "covariance_rad2_s2", "rotation_lp", "rotated_lp_rad_s", "tilt_aided", "tilt_settled_s"}
+    new = old.with_estimate(np.zeros(3), np.eye(3))
+    for name in names - {"estimate_rad_s", "covariance_rad2_s2"}:
+        assert getattr(new, name) is getattr(old, name), name
+    assert new.variance_rad2_s2 == 1.0 and old.variance_rad2_s2 == pytest.approx(2e-4, rel=1e-15)
+    assert old.with_covariance(np.eye(3) * 3.0).estimate_rad_s is old.estimate_rad_s

@@ -114,16 +114,26 @@ class FusionModel:
         cfg, s = self.config, self._state
         dt = tick.dt_ns * 1e-9
         placed = [x.t_ns for x in tick.samples] if tick.placed_ns is None else tick.placed_ns
-        imu = [(x, t) for x, t in zip(tick.samples, placed) if isinstance(x, ImuSample)]
-        gnss = [(x, t) for x, t in zip(tick.samples, placed) if isinstance(x, GnssSample)]
+        imu: list[tuple[ImuSample, int]] = []
+        gnss: list[tuple[GnssSample, int]] = []
+        attitudes: list[AttitudeSample] = []
+        for x, t in zip(tick.samples, placed):
+            if isinstance(x, ImuSample):
+                imu.append((x, t))
+            elif isinstance(x, GnssSample):
+                gnss.append((x, t))
+            elif isinstance(x, AttitudeSample):
+                attitudes.append(x)
         events: list[str] = []
 
         # 0. the vehicle's IMUs checked against each other: one that disagrees is kept out
-        imu_check, kept, disagreeing = check_imus(cfg.imu_check, s.imu_check, [x for x, _ in imu], [t for _, t in imu])
-        imu = [imu[i] for i in kept]
-        events += ["imu_disagree"] * disagreeing
-        imu_fault = imu_check.last_fault_ns is not None and tick.t_ns - imu_check.last_fault_ns <= max(cfg.imu_check.compare_within_s * 1e9, tick.dt_ns)
         imu_samples, imu_placed = [x for x, _ in imu], [t for _, t in imu]
+        imu_check, kept, disagreeing = check_imus(cfg.imu_check, s.imu_check, imu_samples, imu_placed)
+        if disagreeing:
+            imu = [imu[i] for i in kept]
+            imu_samples, imu_placed = [x for x, _ in imu], [t for _, t in imu]
+            events += ["imu_disagree"] * disagreeing
+        imu_fault = imu_check.last_fault_ns is not None and tick.t_ns - imu_check.last_fault_ns <= max(cfg.imu_check.compare_within_s * 1e9, tick.dt_ns)
 
         # 1. predict: the gyro over the whole tick, then the closed-form prediction
         bias = bias_feedback.propagate(cfg.bias, s.bias, dt)
@@ -159,7 +169,8 @@ class FusionModel:
         interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
         if field_diagnostic is not None:
             diagnostics.append(field_diagnostic)
-        accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags_s(imu_placed, tick.t_ns), body_rate) if imu else None
+        lags = lags_s(imu_placed, tick.t_ns)
+        accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags, body_rate) if imu else None
         tau = tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2)
         velocity = track_velocity(cfg.gnss, cfg.accel, cfg.updates, s.velocity, gnss, gravity, accel, tick.t_ns, tick.dt_ns,
                                   prediction.attitude, context.prior_doubt_deg, tau, unknown_rotation_s > 0.0, self.method)
@@ -194,7 +205,7 @@ class FusionModel:
                 exponent = exponent + reading.exponent
             if reading.apply_now:
                 belief, exponent = _multiplied(belief, exponent), np.zeros((4, 4))
-        mag = self._mag_in_state_body(tick, imu, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
+        mag = self._mag_in_state_body(tick, imu_samples, lags, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
         if mag is not None:
             since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
             heading = HeadingState(heading.gated_s, tick.t_ns)
@@ -204,9 +215,9 @@ class FusionModel:
             diagnostics.append(h.diagnostic)
             if h.exponent is not None:
                 exponent = exponent + h.exponent
-        attitudes = [x for x in tick.samples if isinstance(x, AttitudeSample)]
         attitude_source = s.attitude_source
-        if attitudes and attitude_in_use(cfg.attitude, track, tick.t_ns):
+        attitude_fused = attitude_in_use(cfg.attitude, track, tick.t_ns)
+        if attitudes and attitude_fused:
             a = update_attitude(cfg.attitude, cfg.updates, attitude_source, attitudes, belief.mode,
                                 gravity.down_body if gravity.tilt_known else None, context)
             attitude_source = a.state
@@ -225,7 +236,7 @@ class FusionModel:
         # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
         if imu:
             bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context, tau, interval,
-                                                 velocity, reading, h, since, unaided, attitude_in_use(cfg.attitude, track, tick.t_ns),
+                                                 velocity, reading, h, since, unaided, attitude_fused,
                                                  rest.at_rest, rate, unknown_rotation_s > 0.0 or not gravity.converged)
 
         # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
@@ -239,19 +250,21 @@ class FusionModel:
         self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
                                   rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
                                   model_error=error_state, velocity=velocity.state, field=field, unaided=unaided)
-        self.counters.update(events)
-        self.counters.update(c for c in map(counter_name, diagnostics) if c is not None)
+        events += [c for c in map(counter_name, diagnostics) if c is not None]
+        if events:
+            self.counters.update(events)
         return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters), self._ahead_ns)
 
-    def _mag_in_state_body(self, tick: TickInput, imu: list[tuple[ImuSample, int]], body_rate: np.ndarray | None) -> np.ndarray | None:
+    def _mag_in_state_body(self, tick: TickInput, imu: list[ImuSample], lags: np.ndarray, body_rate: np.ndarray | None) -> np.ndarray | None:
         """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body
-        frame), or None without one or with the magnetometer off."""
+        frame), or None without one or with the magnetometer off; ``lags`` are the IMU samples' before the tick."""
         if not self.config.mag.enabled:
             return None
         mags: list = [x.mag_gauss for x in tick.samples if isinstance(x, MagSample)]
-        with_mag = [(x, t) for x, t in imu if x.mag_gauss is not None]
+        with_mag = [i for i, x in enumerate(imu) if x.mag_gauss is not None]
         if with_mag:
-            mags.append(mean_in_state_body([x.mag_gauss for x, _ in with_mag], lags_s([t for _, t in with_mag], tick.t_ns), body_rate))
+            mags.append(mean_in_state_body([imu[i].mag_gauss for i in with_mag], lags if len(with_mag) == len(imu) else lags[with_mag],
+                                           body_rate))
         if not mags:
             return None
         return np.asarray(mags[0], dtype=float) if len(mags) == 1 else np.mean(mags, axis=0)
