@@ -211,17 +211,19 @@ def low_pass(state: BiasState, predicted_q: np.ndarray, tilt_tau_s: float, inter
     if state.rotation_lp is None or state.rotated_lp_rad_s is None or aided != state.tilt_aided:
         return BiasState(state.estimate_rad_s, state.covariance_rad2_s2, np.stack([rotation, rotation, rotation]),
                          np.stack([rotated, rotated, rotated]), aided, 0.0)
-    r, b = state.rotation_lp.copy(), state.rotated_lp_rad_s.copy()
+    # each stage's rotation and rotated estimate as one row of 12 plain floats (numpy's per-call cost would dominate)
+    now = rotation.ravel().tolist() + rotated.tolist()
+    r, b = state.rotation_lp.reshape(3, 9).tolist(), state.rotated_lp_rad_s.tolist()
+    stage_1, stage_2, heading_stage = r[0] + b[0], r[1] + b[1], r[2] + b[2]
     a = min(1.0, interval_s / tilt_tau_s)
-    r[0] += a * (rotation - r[0])
-    b[0] += a * (rotated - b[0])
+    stage_1 = [x + a * (t - x) for x, t in zip(stage_1, now)]
     if tilt_gain is not None:
-        r[1] += tilt_gain * (r[0] - r[1])
-        b[1] += tilt_gain * (b[0] - b[1])
+        stage_2 = [x + tilt_gain * (t - x) for x, t in zip(stage_2, stage_1)]
     if heading_gain is not None:
-        r[2] += heading_gain * (rotation - r[2])
-        b[2] += heading_gain * (rotated - b[2])
-    return BiasState(state.estimate_rad_s, state.covariance_rad2_s2, r, b, state.tilt_aided, state.tilt_settled_s + interval_s)
+        heading_stage = [x + heading_gain * (t - x) for x, t in zip(heading_stage, now)]
+    stages = np.array([stage_1, stage_2, heading_stage])
+    return BiasState(state.estimate_rad_s, state.covariance_rad2_s2, stages[:, :9].reshape(3, 3, 3), stages[:, 9:], state.tilt_aided,
+                     state.tilt_settled_s + interval_s)
 
 
 def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray, tilt_tau_s: float,
