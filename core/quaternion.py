@@ -41,6 +41,9 @@ IDENTITY = np.array([1.0, 0.0, 0.0, 0.0])
 
 _UNIT_TOL = 1e-6
 
+_CONJUGATE_SIGN = np.array([1.0, -1.0, -1.0, -1.0])
+_CONJUGATE_SIGN.setflags(write=False)
+
 
 def as_quaternion(q: ArrayLike, *, unit: bool = True) -> NDArray[np.float64]:
     """Return ``q`` as a float array of shape (..., 4), validated.
@@ -49,12 +52,13 @@ def as_quaternion(q: ArrayLike, *, unit: bool = True) -> NDArray[np.float64]:
     norm further than 1e-6 from one.
     """
     arr = np.asarray(q, dtype=float)
-    if arr.shape[-1:] != (4,):
-        raise ValueError(f"a quaternion needs 4 components (w, x, y, z), got shape {arr.shape}")
-    if arr.ndim == 1:  # one quaternion, the common case in a filter loop: a dot product checks it all
-        norm2 = float(arr @ arr)
+    if arr.shape == (4,):  # one quaternion, the common case in a filter loop: its squared norm in plain floats checks it all
+        w, x, y, z = arr.tolist()
+        norm2 = w * w + x * x + y * y + z * z
         if math.isfinite(norm2) and (not unit or abs(norm2 - 1.0) <= _UNIT_TOL):
             return arr
+    elif arr.shape[-1:] != (4,):
+        raise ValueError(f"a quaternion needs 4 components (w, x, y, z), got shape {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError("quaternion has NaN or infinite components")
     if unit:
@@ -81,9 +85,9 @@ def normalize(q: ArrayLike) -> NDArray[np.float64]:
 
 def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     """Hamilton product ``p q`` (apply ``q`` first, then ``p``)."""
-    q = np.asarray(q, dtype=float)
-    if q.shape == (4,) and np.shape(p) == (4,):  # one pair, as in a filter loop: plain floats
-        return _multiply_one(np.asarray(p, dtype=float).tolist(), q.tolist())
+    p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
+    if q.shape == (4,) and p.shape == (4,):  # one pair, as in a filter loop: plain floats
+        return _multiply_one(p.tolist(), q.tolist())
     return (left_matrix(p) @ q[..., None])[..., 0]
 
 
@@ -102,7 +106,7 @@ def _multiply_one(p: list[float], q: list[float]) -> NDArray[np.float64]:
 
 def conjugate(q: ArrayLike) -> NDArray[np.float64]:
     """Quaternion conjugate (w, -x, -y, -z)."""
-    return np.asarray(q, dtype=float) * np.array([1.0, -1.0, -1.0, -1.0])
+    return np.asarray(q, dtype=float) * _CONJUGATE_SIGN
 
 
 def inverse(q: ArrayLike) -> NDArray[np.float64]:
@@ -136,15 +140,15 @@ def rotate(q: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
 def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
     """Rotation matrix ``R`` with ``R @ v == rotate(q, v)``: the vector block of ``L(q) R(q)^T``."""
     q = np.asarray(q, dtype=float)
-    if q.shape == (4,):  # one quaternion: the same entries written out, in plain floats
+    if q.shape == (4,):  # one quaternion: the same entries written out, in plain floats (a flat list builds faster)
         w, x, y, z = q.tolist()
         return np.array(
             [
-                [w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
-                [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z],
+                w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y),
+                2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x),
+                2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z,
             ]
-        )
+        ).reshape(3, 3)
     return (left_matrix(q) @ np.swapaxes(right_matrix(q), -1, -2))[..., 1:, 1:]
 
 

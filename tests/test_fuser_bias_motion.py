@@ -11,10 +11,11 @@ from core import quaternion as quat
 from core.bingham import Bingham
 from core.observations import vector_exponent
 from drivers.samples import GnssSample
-from fuser.config import BiasSettings, FuserConfig
-from fuser.model import FusionModel
+from fuser.config import BiasSettings, FuserConfig, RestSettings
+from fuser.model import FusionModel, bias
 from fuser.model.bias import SETTLE_TIME_CONSTANTS, HeadingEvidence, TiltEvidence, learn_in_motion, low_pass, reading_gain
-from fuser.model.state import BiasState
+from fuser.model.rest import measure_bias
+from fuser.model.state import BiasState, RestState
 from fusion_inputs import SRC
 from motion_inputs import fly, turning
 
@@ -200,3 +201,60 @@ def test_a_body_that_keeps_turning_is_measured_through_the_low_passed_rotation()
     assert abs(quat.to_matrix(quat.from_rotvec([0.0, 0.0, 0.99]))[1, 0] - state.rotation_lp[1][1, 0]) > 0.5  # far from the current R
     held = low_pass(state, quat.from_rotvec([0.0, 0.0, 1.0]), tau, INTERVAL, False, None, None)
     np.testing.assert_array_equal(held.rotation_lp[1], state.rotation_lp[1])
+
+
+def test_the_tilt_and_heading_rows_together_are_the_joint_kalman_update():
+    """Tilted stages (the rows of LP2(R) and LP1(R) not axis-aligned) and a correlated prior: the three rows the tick
+    teaches are the joint Kalman update ``K = P H^T (H P H^T + R)^-1`` with a diagonal ``R`` (written out here with
+    numpy's inverse, as the model once computed it), whatever order the model takes them in."""
+    rng = np.random.default_rng(5)
+    turns = [quat.from_rotvec(rng.normal(0.0, 0.6, 3)) for _ in range(3)]
+    rotation_lp = np.stack([quat.to_matrix(q) for q in turns])
+    estimate = np.array([0.004, -0.003, 0.002])
+    rotated_lp = np.stack([r @ (estimate + rng.normal(0.0, 0.002, 3)) for r in rotation_lp])
+    a = rng.normal(0.0, 0.006, (3, 3))
+    covariance = a @ a.T + 1e-5 * np.eye(3)
+    state = BiasState(estimate, covariance, rotation_lp, rotated_lp, False, math.inf)
+    predicted, posterior = quat.IDENTITY, quat.from_rotvec([0.002 * INTERVAL, -0.001 * INTERVAL, 0.003 * INTERVAL])
+    tilt = TiltEvidence(0.004, INTERVAL, 3e-7)  # row noises of 1e-5 (rad/s)^2, as large as what the rows know
+    heading = HeadingEvidence(0.002, INTERVAL, 1e-3, 10.0)
+    after = learn_in_motion(BiasSettings(floor_sigma_rad_s=0.0), state, predicted, posterior, TAU, tilt, heading, 0.0, 0.0)
+    held_t, held_h = max(INTERVAL / tilt.gain, TAU), max(INTERVAL / heading.gain, heading.correlation_s)
+    noise = np.diag([tilt.noise_rad2 / held_t * 1 / INTERVAL] * 2 + [heading.error_rad**2 / held_h / INTERVAL])
+    h = np.stack([rotation_lp[1, 0], rotation_lp[1, 1], rotation_lp[2, 2]])
+    correction = quat.to_rotvec(posterior) / INTERVAL
+    y = np.array([rotated_lp[1, 0], rotated_lp[1, 1], rotated_lp[2, 2]]) - correction
+    innovation_covariance = h @ covariance @ h.T + noise
+    sigmas = np.sqrt(np.diag(innovation_covariance))
+    correlation = innovation_covariance / np.outer(sigmas, sigmas)
+    assert np.all(np.abs(correlation[np.triu_indices(3, 1)]) > 0.05)  # the rows are coupled: each one teaches the others'
+    gain = covariance @ h.T @ np.linalg.inv(innovation_covariance)
+    np.testing.assert_allclose(after.estimate_rad_s, estimate + gain @ (y - h @ estimate), rtol=1e-12, atol=1e-16)
+    np.testing.assert_allclose(after.covariance_rad2_s2, (np.eye(3) - gain @ h) @ covariance, rtol=1e-10, atol=1e-18)
+    np.testing.assert_array_equal(after.covariance_rad2_s2, after.covariance_rad2_s2.T)
+
+
+def test_the_bias_steps_keep_every_field_they_do_not_update():
+    """Each step builds its new state directly (not with ``dataclasses.replace``): every field of
+    :class:`BiasState` it does not update must still be carried (a field added later and forgotten fails here)."""
+    rotation_lp, rotated_lp = np.stack([np.eye(3)] * 3), np.full((3, 3), 0.001)
+    state = BiasState(np.array([0.001, 0.002, 0.003]), 1e-4 * np.eye(3), rotation_lp, rotated_lp, True, 7.0)
+    defaults = BiasState(np.zeros(3), np.eye(3))
+    for field in dataclasses.fields(BiasState):  # the premise: no field of the state above holds its default
+        assert not np.array_equal(getattr(state, field.name), getattr(defaults, field.name)), field.name
+    evidence = TiltEvidence(INTERVAL / TAU, INTERVAL, math.radians(0.5) ** 2)
+    turned = quat.from_rotvec([1e-4, 0.0, 0.0])
+    updated = {
+        "propagate": (bias.propagate(BiasSettings(), state, 0.01), {"covariance_rad2_s2"}),
+        "learn_in_motion": (learn_in_motion(BiasSettings(), state, quat.IDENTITY, turned, TAU, evidence, None, 0.0, 0.0),
+                            {"estimate_rad_s", "covariance_rad2_s2"}),
+        "integral_feedback": (bias.integral_feedback(BiasSettings(), state, quat.IDENTITY, turned, 0.01),
+                              {"estimate_rad_s", "covariance_rad2_s2"}),
+        "measure_bias": (measure_bias(RestSettings(), RestState(np.array([0.01, 0.0, 0.0])), state, 0.01),
+                         {"estimate_rad_s", "covariance_rad2_s2"}),
+        "low_pass": (low_pass(state, turned, TAU, INTERVAL, True, 0.5, 0.5), {"rotation_lp", "rotated_lp_rad_s", "tilt_settled_s"}),
+    }
+    for step, (after, changed) in updated.items():
+        for field in dataclasses.fields(BiasState):
+            same = np.array_equal(getattr(after, field.name), getattr(state, field.name))
+            assert same != (field.name in changed), (step, field.name)

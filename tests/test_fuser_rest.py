@@ -12,6 +12,8 @@ from drivers.samples import ImuSample
 from fuser.config import BiasSettings, FuserConfig, ModelErrorSettings, RestSettings
 from fuser.model import FusionModel
 from fuser.model.gravity import tilt_time_constant_s
+from fuser.model.rest import detect_rest, measure_bias
+from fuser.model.state import BiasState, RestState
 from fuser.model_error import with_model_error
 from fusion_inputs import FIELD, GRAVITY_M_S2, SRC, TICK, tick
 
@@ -49,6 +51,50 @@ def test_without_rest_detection_the_bias_is_not_found():
     model = FusionModel(FuserConfig(bias=NO_FEEDBACK, rest=RestSettings(enabled=False)))
     still(model, quat.IDENTITY, 4.0, bias)
     assert not model.state.rest.at_rest and np.all(model.state.bias.estimate_rad_s == 0.0)
+
+
+def test_the_rest_measurement_is_the_kalman_update_of_the_bias():
+    """A correlated prior and the low-passed gyro with noise ``sigma^2 filter_s / dt``: the update is
+    ``K = P (P + R)^-1``, ``b + K (g - b)``, ``(I - K) P`` (written out with numpy's inverse), and the stages of the
+    motion estimate pass through untouched."""
+    params = RestSettings()
+    rng = np.random.default_rng(3)
+    a = rng.normal(0.0, 0.004, (3, 3))
+    prior = a @ a.T + 1e-6 * np.eye(3)
+    stages = np.stack([np.eye(3)] * 3)
+    bias = BiasState(np.array([0.001, -0.002, 0.0005]), prior, stages, np.zeros((3, 3)), True, 4.0)
+    gyro_lp = np.array([0.006, -0.004, 0.002])
+    dt = 0.01
+    after = measure_bias(params, RestState(gyro_lp, np.zeros(3), 1.0, True), bias, dt)
+    noise = params.bias_sigma_rad_s**2 * params.filter_s / dt * np.eye(3)
+    gain = prior @ np.linalg.inv(prior + noise)
+    assert np.min(np.abs(gain)) > 1e-3  # the premise: every axis teaches every other
+    np.testing.assert_allclose(after.estimate_rad_s, bias.estimate_rad_s + gain @ (gyro_lp - bias.estimate_rad_s), rtol=1e-12)
+    np.testing.assert_allclose(after.covariance_rad2_s2, (np.eye(3) - gain) @ prior, rtol=1e-10, atol=1e-20)
+    np.testing.assert_array_equal(after.covariance_rad2_s2, after.covariance_rad2_s2.T)
+    assert after.rotation_lp is stages and after.tilt_aided and after.tilt_settled_s == 4.0
+
+
+def test_the_detector_follows_its_low_passes_and_its_three_thresholds():
+    """Hand-worked low-pass steps (``a = dt / filter_s``) and each of the three tests (the gyro's change, the
+    low-passed rate, the specific force's change) alone keeping the detector from rest."""
+    params = RestSettings()
+    dt = 0.01
+    a = dt / params.filter_s
+    gyro, accel = np.array([0.001, 0.0, -0.001]), np.array([0.0, 0.0, -9.81])
+    state = RestState(np.array([0.0, 0.002, 0.0]), np.array([0.01, 0.0, -9.8]), params.min_s - dt / 2, False)
+    after = detect_rest(params, state, gyro, accel, dt)
+    np.testing.assert_allclose(after.gyro_lp_rad_s, [a * 0.001, 0.002 - a * 0.002, -a * 0.001], rtol=1e-12)
+    np.testing.assert_allclose(after.accel_lp_m_s2, [0.01 - a * 0.01, 0.0, -9.8 - a * 0.01], rtol=1e-12)
+    assert after.at_rest and after.still_s == pytest.approx(params.min_s + dt / 2)
+    jump = 2.0 * params.gyro_rad_s / (1.0 - a)  # leaves its low-pass by more than the threshold
+    turning = np.array([0.0, 0.0, 1.5 * params.gyro_rad_s])  # steady, so its own low-pass follows it
+    for rate, force, lp in ((gyro + [jump, 0.0, 0.0], accel, None),
+                            (turning, accel, turning),
+                            (gyro, accel + [0.0, 2.0 * params.accel_m_s2 / (1.0 - a), 0.0], None)):
+        moved = detect_rest(params, RestState(lp if lp is not None else state.gyro_lp_rad_s, state.accel_lp_m_s2, 5.0, True),
+                            rate, force, dt)
+        assert not moved.at_rest and moved.still_s == 0.0
 
 
 @pytest.mark.parametrize("motion", ["steady turn", "oscillation"])

@@ -158,9 +158,31 @@ class HeadingEvidence:
 
 def propagate(params: BiasSettings, state: BiasState, dt_s: float) -> BiasState:
     """The bias uncertainty grows by its random walk over ``dt_s``, each axis up to its initial value."""
-    covariance = state.covariance_rad2_s2 + params.walk_rad_s_rt_s**2 * dt_s * np.eye(3)
-    scale = np.minimum(1.0, params.initial_sigma_rad_s / np.sqrt(np.diag(covariance)))
-    return state.with_covariance(covariance * np.outer(scale, scale))
+    walk = params.walk_rad_s_rt_s**2 * dt_s
+    covariance = state.covariance_rad2_s2.tolist()  # 3x3 in plain floats: numpy's per-call cost would dominate
+    for i in range(3):
+        covariance[i][i] += walk
+    limit = params.initial_sigma_rad_s
+    scale = [min(1.0, limit / math.sqrt(covariance[i][i])) for i in range(3)]
+    if scale != [1.0, 1.0, 1.0]:  # an axis past its initial value: scaled back to it, the correlations kept
+        covariance = [[c * (si * sj) for c, sj in zip(row, scale)] for row, si in zip(covariance, scale)]
+    return _with_estimate(state, state.estimate_rad_s, np.array(covariance))
+
+
+def _with_estimate(state: BiasState, estimate_rad_s: np.ndarray, covariance_rad2_s2: np.ndarray) -> BiasState:
+    """``state`` with a new estimate and covariance, its stages kept (constructed directly: ``dataclasses.replace``
+    costs several microseconds a call, and this runs up to four times a tick)."""
+    return BiasState(estimate_rad_s, covariance_rad2_s2, state.rotation_lp, state.rotated_lp_rad_s, state.tilt_aided, state.tilt_settled_s)
+
+
+def _mean_variance(covariance: list[list[float]]) -> float:
+    """:attr:`BiasState.variance_rad2_s2` of a covariance given as plain floats (the same sum, in the same order)."""
+    return (covariance[0][0] + covariance[1][1] + covariance[2][2]) / 3.0
+
+
+def _clipped(vector: list[float], limit: float) -> np.ndarray:
+    """``np.clip(vector, -limit, limit)`` of a 3-vector given as plain floats."""
+    return np.array([min(max(x, -limit), limit) for x in vector])
 
 
 def reading_gain(prior_variance_rad2: float, sigma_rad: float) -> float:
@@ -187,19 +209,21 @@ def low_pass(state: BiasState, predicted_q: np.ndarray, tilt_tau_s: float, inter
     rotation = quat.to_matrix(predicted_q)
     rotated = rotation @ state.estimate_rad_s
     if state.rotation_lp is None or state.rotated_lp_rad_s is None or aided != state.tilt_aided:
-        return replace(state, rotation_lp=np.stack([rotation, rotation, rotation]), rotated_lp_rad_s=np.stack([rotated, rotated, rotated]),
-                       tilt_aided=aided, tilt_settled_s=0.0)
-    r, b = state.rotation_lp.copy(), state.rotated_lp_rad_s.copy()
+        return BiasState(state.estimate_rad_s, state.covariance_rad2_s2, np.stack([rotation, rotation, rotation]),
+                         np.stack([rotated, rotated, rotated]), aided, 0.0)
+    # each stage's rotation and rotated estimate as one row of 12 plain floats (numpy's per-call cost would dominate)
+    now = rotation.ravel().tolist() + rotated.tolist()
+    r, b = state.rotation_lp.reshape(3, 9).tolist(), state.rotated_lp_rad_s.tolist()
+    stage_1, stage_2, heading_stage = r[0] + b[0], r[1] + b[1], r[2] + b[2]
     a = min(1.0, interval_s / tilt_tau_s)
-    r[0] += a * (rotation - r[0])
-    b[0] += a * (rotated - b[0])
+    stage_1 = [x + a * (t - x) for x, t in zip(stage_1, now)]
     if tilt_gain is not None:
-        r[1] += tilt_gain * (r[0] - r[1])
-        b[1] += tilt_gain * (b[0] - b[1])
+        stage_2 = [x + tilt_gain * (t - x) for x, t in zip(stage_2, stage_1)]
     if heading_gain is not None:
-        r[2] += heading_gain * (rotation - r[2])
-        b[2] += heading_gain * (rotated - b[2])
-    return replace(state, rotation_lp=r, rotated_lp_rad_s=b, tilt_settled_s=state.tilt_settled_s + interval_s)
+        heading_stage = [x + heading_gain * (t - x) for x, t in zip(heading_stage, now)]
+    stages = np.array([stage_1, stage_2, heading_stage])
+    return BiasState(state.estimate_rad_s, state.covariance_rad2_s2, stages[:, :9].reshape(3, 3, 3), stages[:, 9:], state.tilt_aided,
+                     state.tilt_settled_s + interval_s)
 
 
 def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray, tilt_tau_s: float,
@@ -214,7 +238,7 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
     (a bias known better from rest stays as known).
     """
     assert state.rotation_lp is not None and state.rotated_lp_rad_s is not None
-    rotvec = quat.to_rotvec(quat.multiply(posterior_q, quat.conjugate(predicted_q)))  # world frame
+    rotvec = quat.to_rotvec(quat.multiply(posterior_q, quat.conjugate(predicted_q))).tolist()  # world frame
     spurious = (scale_error * rate_rad_s) ** 2  # a scale error turns the rate into a correction as a bias would
     rows: list[int] = []
     stage: list[int] = []
@@ -233,18 +257,25 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
         correction.append(rotvec[2] / heading.interval_s)
     if not rows:
         return state
-    y = state.rotated_lp_rad_s[stage, rows] - np.array(correction)
-    h = state.rotation_lp[stage, rows, :]
-    covariance = state.covariance_rad2_s2
-    gain = covariance @ h.T @ np.linalg.inv(h @ covariance @ h.T + np.diag(noise))
-    limit = params.max_abs_rad_s
-    estimate = np.clip(state.estimate_rad_s + gain @ (y - h @ state.estimate_rad_s), -limit, limit)
-    learnt = (np.eye(3) - gain @ h) @ covariance
-    learnt = 0.5 * (learnt + learnt.T)
-    floor = min(params.floor_sigma_rad_s**2, state.variance_rad2_s2)
-    if np.trace(learnt) / 3.0 < floor:  # no surer than the floor (or than it was) from motion alone
-        learnt = learnt * (floor / (np.trace(learnt) / 3.0))
-    return state.with_estimate(estimate, learnt)
+    # The rows' noises are independent (a diagonal R), so updating with one row at a time is the joint update
+    # exactly (sequential Kalman filtering; D. Simon, "Optimal State Estimation", 2006, sec. 6.1): a scalar
+    # innovation variance per row, no matrix inverse, in plain floats (3-vectors: numpy's per-call cost would dominate).
+    estimate = state.estimate_rad_s.tolist()
+    covariance = state.covariance_rad2_s2.tolist()
+    floor = min(params.floor_sigma_rad_s**2, _mean_variance(covariance))
+    for row, st, r, c in zip(rows, stage, noise, correction):
+        h = state.rotation_lp[st, row].tolist()
+        y = float(state.rotated_lp_rad_s[st, row]) - c
+        ph = [p0 * h[0] + p1 * h[1] + p2 * h[2] for p0, p1, p2 in covariance]  # P h^T
+        gain = [x / (h[0] * ph[0] + h[1] * ph[1] + h[2] * ph[2] + r) for x in ph]  # P h^T / (h P h^T + r)
+        innovation = y - (h[0] * estimate[0] + h[1] * estimate[1] + h[2] * estimate[2])
+        estimate = [e + k * innovation for e, k in zip(estimate, gain)]
+        covariance = [[p - k * x for p, x in zip(row_p, ph)] for row_p, k in zip(covariance, gain)]  # (I - k h) P
+    learnt = [[0.5 * (covariance[i][j] + covariance[j][i]) for j in range(3)] for i in range(3)]
+    mean = _mean_variance(learnt)
+    if mean < floor:  # no surer than the floor (or than it was) from motion alone
+        learnt = [[x * (floor / mean) for x in row_l] for row_l in learnt]
+    return _with_estimate(state, _clipped(estimate, params.max_abs_rad_s), np.array(learnt))
 
 
 def may_learn(params: BiasSettings, at_rest: bool, prior_doubt_deg: float) -> bool:
@@ -320,10 +351,11 @@ def integral_feedback(params: BiasSettings, state: BiasState, predicted_q: np.nd
     time constant (the covariance scaled, its shape kept), and never raises
     it (a bias learnt at rest is known better than feedback can tell).
     """
-    correction = quat.to_rotvec(quat.multiply(quat.conjugate(predicted_q), posterior_q))
-    limit = params.max_abs_rad_s
-    estimate = np.clip(state.estimate_rad_s - correction / params.time_constant_s, -limit, limit)
-    decay = min(1.0, dt_s / params.time_constant_s)
-    variance = state.variance_rad2_s2
+    correction = quat.to_rotvec(quat.multiply(quat.conjugate(predicted_q), posterior_q)).tolist()
+    tau = params.time_constant_s
+    estimate = _clipped([b - c / tau for b, c in zip(state.estimate_rad_s.tolist(), correction)], params.max_abs_rad_s)
+    decay = min(1.0, dt_s / tau)
+    covariance = state.covariance_rad2_s2
+    variance = _mean_variance(covariance.tolist())
     learnt = variance - decay * max(0.0, variance - params.floor_sigma_rad_s**2)
-    return state.with_estimate(estimate, state.covariance_rad2_s2 * (learnt / variance if variance > 0.0 else 1.0))
+    return _with_estimate(state, estimate, covariance * (learnt / variance if variance > 0.0 else 1.0))

@@ -82,6 +82,7 @@ def lead(gyro: GyroSettings, track: GyroTrack | None, bias_rad_s: np.ndarray, ti
         return Lead(None, variance)
     age_s = (tick_ns - track.last_ns) * 1e-9
     variance += gyro.rate_walk_rad_s_rt_s**2 * ((age_s + held_s) ** 3 - age_s**3) / 3.0
-    rate = np.asarray(track.last_rate_rad_s, dtype=float) - bias_rad_s
-    angle = math.sqrt(float(rate @ rate)) * held_s
-    return Lead(quat.from_rotvec(rate * held_s) if angle > 0.0 else None, variance)
+    (x, y, z), (bx, by, bz) = track.last_rate_rad_s, bias_rad_s.tolist()  # 3-vectors in plain floats
+    x, y, z = x - bx, y - by, z - bz
+    angle = math.sqrt(x * x + y * y + z * z) * held_s
+    return Lead(quat.from_rotvec(np.array([x * held_s, y * held_s, z * held_s])) if angle > 0.0 else None, variance)

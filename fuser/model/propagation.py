@@ -115,64 +115,65 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
     x = y = z = known_ns = gap_ns = saturated_ns = 0.0
     closed = 0.0
     gaps = saturated_samples = 0
+    # the track's fields as locals through the samples (a GyroTrack per sample cost more than the arithmetic)
+    started = track is not None
+    if track is not None:
+        last_ns, last_rate, covered_ns, held, interval_s, last_saturated = (
+            track.last_ns, track.last_rate_rad_s, track.covered_ns, track.held_rad, track.interval_s, track.saturated)
     for t, rate, saturated in _merged(params, samples, placed_ns):
         saturated_samples += saturated
-        if track is None:  # the first sample ever: nothing before it is known
+        if not started:  # the first sample ever: nothing before it is known
             gap_ns += t - tick_start_ns
-            track = GyroTrack(t, rate, t, (0.0, 0.0, 0.0), saturated=saturated)
+            started = True
+            last_ns, last_rate, covered_ns, held, interval_s, last_saturated = t, rate, t, (0.0, 0.0, 0.0), None, saturated
             continue
-        h_ns = t - track.last_ns
-        held = track.held_rad
+        h_ns = t - last_ns
         h_s = h_ns * 1e-9
-        interval = h_s if track.interval_s is None else track.interval_s + min(1.0, h_s / params.rate_window_s) * (h_s - track.interval_s)
-        if saturated or track.saturated:  # no rate from the last good sample to the next: what a hold applied stays
-            saturated_ns += t - track.covered_ns
-            if not track.saturated and track.covered_ns < track.last_ns + max_ns:
-                closed += walk2 * ((track.covered_ns - track.last_ns) * 1e-9) ** 3 / 3.0
+        interval = h_s if interval_s is None else interval_s + min(1.0, h_s / params.rate_window_s) * (h_s - interval_s)
+        if saturated or last_saturated:  # no rate from the last good sample to the next: what a hold applied stays
+            saturated_ns += t - covered_ns
+            if not last_saturated and covered_ns < last_ns + max_ns:
+                closed += walk2 * ((covered_ns - last_ns) * 1e-9) ** 3 / 3.0
         elif h_ns <= max_ns:
             h = h_ns * 1e-9
             half = 0.5 * h
-            last = track.last_rate_rad_s
-            x += half * (rate[0] + last[0]) - held[0]
-            y += half * (rate[1] + last[1]) - held[1]
-            z += half * (rate[2] + last[2]) - held[2]
-            known_ns += t - track.covered_ns
+            x += half * (rate[0] + last_rate[0]) - held[0]
+            y += half * (rate[1] + last_rate[1]) - held[1]
+            z += half * (rate[2] + last_rate[2]) - held[2]
+            known_ns += t - covered_ns
             closed += walk2 * h**3 / 12.0
         else:  # a gap: the rate is held to max_interval after the last sample (what it applied stays), then unknown
             gaps += 1
-            hold_end = track.last_ns + max_ns
-            if track.covered_ns < hold_end:  # the hold runs out in this tick
-                dt_hold = (hold_end - track.covered_ns) * 1e-9
-                last = track.last_rate_rad_s
-                x += last[0] * dt_hold
-                y += last[1] * dt_hold
-                z += last[2] * dt_hold
-                known_ns += hold_end - track.covered_ns
+            hold_end = last_ns + max_ns
+            if covered_ns < hold_end:  # the hold runs out in this tick
+                dt_hold = (hold_end - covered_ns) * 1e-9
+                x += last_rate[0] * dt_hold
+                y += last_rate[1] * dt_hold
+                z += last_rate[2] * dt_hold
+                known_ns += hold_end - covered_ns
                 closed += walk2 * params.max_interval_s**3 / 3.0
-            gap_ns += t - max(track.covered_ns, hold_end)
-        track = GyroTrack(t, rate, t, (0.0, 0.0, 0.0), interval, saturated)
-    if track is None:
+            gap_ns += t - max(covered_ns, hold_end)
+        last_ns, last_rate, covered_ns, held, interval_s, last_saturated = t, rate, t, (0.0, 0.0, 0.0), interval, saturated
+    if not started:
         return None, Motion(np.zeros(3), known_s=0.0, closed_variance_rad2=0.0, gap_s=(tick_end_ns - tick_start_ns) * 1e-9,
                             saturated_s=0.0, saturated_samples=0, hold_variance_rad2=0.0, gaps=0, held=False)
-    if track.saturated:
-        saturated_ns += tick_end_ns - track.covered_ns
-        track = GyroTrack(track.last_ns, track.last_rate_rad_s, tick_end_ns, (0.0, 0.0, 0.0), track.interval_s, True)
+    if last_saturated:
+        saturated_ns += tick_end_ns - covered_ns
+        track = GyroTrack(last_ns, last_rate, tick_end_ns, (0.0, 0.0, 0.0), interval_s, True)
         motion = Motion(np.array([x, y, z]), known_ns * 1e-9, closed, gap_ns * 1e-9, saturated_ns * 1e-9, saturated_samples, 0.0, gaps,
                         not samples)
         return track, motion
     # hold the last rate to the tick's end, for at most max_interval after the sample
-    hold_end = min(tick_end_ns, track.last_ns + max_ns)
-    start = track.covered_ns
+    hold_end = min(tick_end_ns, last_ns + max_ns)
+    start = covered_ns
     dt_hold = max(0, hold_end - start) * 1e-9
-    rate = track.last_rate_rad_s
-    hx, hy, hz = rate[0] * dt_hold, rate[1] * dt_hold, rate[2] * dt_hold
-    held = track.held_rad
-    track = GyroTrack(track.last_ns, rate, tick_end_ns, (held[0] + hx, held[1] + hy, held[2] + hz), track.interval_s, False)
+    hx, hy, hz = last_rate[0] * dt_hold, last_rate[1] * dt_hold, last_rate[2] * dt_hold
+    track = GyroTrack(last_ns, last_rate, tick_end_ns, (held[0] + hx, held[1] + hy, held[2] + hz), interval_s, False)
     known_ns += max(0, hold_end - start)
     gap_ns += tick_end_ns - max(hold_end, start)
-    age_s = (tick_end_ns - track.last_ns) * 1e-9
-    if tick_end_ns - track.last_ns >= max_ns:
-        if start < track.last_ns + max_ns:  # the hold runs out in this tick: what it applied stays unverified
+    age_s = (tick_end_ns - last_ns) * 1e-9
+    if tick_end_ns - last_ns >= max_ns:
+        if start < last_ns + max_ns:  # the hold runs out in this tick: what it applied stays unverified
             closed += walk2 * params.max_interval_s**3 / 3.0
         hold_variance = 0.0
     else:
