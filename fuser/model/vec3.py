@@ -29,14 +29,14 @@ Rows = Sequence[Sequence[float]]
 
 def floats(v: ArrayLike) -> Vec3:
     """A 3-vector (array, tuple, list) as a tuple of three floats."""
-    x, y, z = v.tolist() if isinstance(v, np.ndarray) else v  # type: ignore[misc]
-    return float(x), float(y), float(z)
+    x, y, z = np.asarray(v, dtype=float).tolist()
+    return x, y, z
 
 
 def rotation_rows(q: ArrayLike) -> Rows:
     """The rotation matrix of the unit quaternion ``q`` (w, x, y, z) as rows of floats: the entries of
     :func:`core.quaternion.to_matrix`, written out alike (so rounded alike), without its arrays."""
-    w, x, y, z = q.tolist() if isinstance(q, np.ndarray) else map(float, q)  # type: ignore[union-attr,arg-type]
+    w, x, y, z = np.asarray(q, dtype=float).tolist()
     return ((w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)),
             (2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)),
             (2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z))
