@@ -183,18 +183,20 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     if fused and lowpassed is None and not gnss_raw:  # a raw reading the estimate follows as down, into their mean
         raw_s = raw_s + interval_s
         raw_mean = np.array(f_inertial if raw_mean is None else vec3.toward(vec3.floats(raw_mean), f_inertial, interval_s / raw_s))
-    down_body = np.array(down)
+    down_body, measured_world = np.array(down), np.array(world_unit) if gnss_raw else _DOWN_NED_READ_ONLY
     after = GravityState(state.q_strapdown, lowpassed_m_s2, down_body, converged, state.tilt_known or fused, gated_s, raw_mean, raw_s,
-                         down_body, gnss_checked, np.array(world_unit))
+                         down_body, gnss_checked, measured_world)
     if not fused:
         return GravityReading(after, None, False, False, diagnostic, restart=restart)
     trusted = converged and norm_error < 0.5 * params.norm_gate_fraction
-    return GravityReading(after, vector_exponent((-filtered_body[0], -filtered_body[1], -filtered_body[2]), world_unit, sigma),
+    return GravityReading(after, vector_exponent(down_body, measured_world, sigma),
                           not state.tilt_known or restart, trusted, diagnostic, restart=restart)
 
 
 _DOWN = (0.0, 0.0, 1.0)
 """:data:`DOWN_NED` in floats."""
+_DOWN_NED_READ_ONLY = np.array(_DOWN)
+_DOWN_NED_READ_ONLY.setflags(write=False)  # shared by every state that measured down
 _GNSS_RAW = (("aiding", "gnss_raw"),)
 
 

@@ -387,7 +387,7 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
                          measured_world)
     if verdict.outcome == "gated":
         return GravityReading(after, None, False, False, diagnostic)
-    return GravityReading(after, vector_exponent(body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
+    return GravityReading(after, vector_exponent(measured_body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
 
 
 _ZERO = (0.0, 0.0, 0.0)
