@@ -260,7 +260,7 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
         (v1x, v1y, v1z), (v0x, v0y, v0z) = fix.vel_ned_m_s, previous.vel_ned_m_s
         # the vertical unknown without vertical velocity: left to the low-pass (module docstring)
         accel = ((v1x - v0x) / span_s, (v1y - v0y) / span_s, (v1z - v0z) / span_s if both_vertical else 0.0)
-        gravity_less_accel = (0.0 - accel[0], 0.0 - accel[1], g - accel[2])  # g e_z - a
+        gravity_less_accel = (-accel[0], -accel[1], g - accel[2])  # g e_z - a
         # aiding or not, into what the gravity update's raw readings measure (gravity.update_gravity)
         mid_ns = (measured + previous.measured_ns) // 2
         if recent_world is None or recent_ns is None or mid_ns - recent_ns > max_age_ns:
@@ -334,7 +334,7 @@ def raw_world(params: GnssSettings, gravity: AccelSettings, state: VelocityState
         return None
     noise_m_s2 = math.sqrt(max(state.recent_noise_var_m2_s4, 0.0))
     x, y, z = vec3.floats(state.recent_world_m_s2)
-    if vec3.norm((0.0 - x, 0.0 - y, gravity.gravity_m_s2 - z)) <= 3.0 * noise_m_s2:  # |g e_z - (g e_z - a)|
+    if vec3.norm((-x, -y, gravity.gravity_m_s2 - z)) <= 3.0 * noise_m_s2:  # |g e_z - (g e_z - a)|
         return None
     return GnssWorld(state.recent_world_m_s2, noise_m_s2)
 
@@ -356,7 +356,7 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     if not v.vertical:  # the vertical is unknown: measured are the horizontal components only (module docstring)
         world = (world[0], world[1], vec3.dot(rotation[2], body))
     # down in the body (the autopilot attitude's check), every tick: gravity's direction a - f, a seen through the estimate
-    seen = vec3.vec_mat((world[0] - 0.0, world[1] - 0.0, world[2] - params.gravity_m_s2), rotation)
+    seen = vec3.vec_mat((world[0], world[1], world[2] - params.gravity_m_s2), rotation)  # R^T (w - g e_z)
     down = (body[0] - seen[0], body[1] - seen[1], body[2] - seen[2])
     down_norm = vec3.norm(down)
     down_body = np.array((down[0] / down_norm, down[1] / down_norm, down[2] / down_norm))
