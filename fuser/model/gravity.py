@@ -60,6 +60,11 @@ __all__ = ["DOWN_NED", "GnssWorld", "GravityReading", "tilt_time_constant_s", "t
 
 DOWN_NED = np.array([0.0, 0.0, 1.0])
 """World down in NED: the reference direction of the gravity measurement (a frame convention, not a tuning)."""
+_DOWN = (0.0, 0.0, 1.0)
+""":data:`DOWN_NED` in floats (:mod:`fuser.model.vec3`)."""
+_DOWN_NED_READ_ONLY = np.array(_DOWN)
+_DOWN_NED_READ_ONLY.setflags(write=False)  # shared by every state that measured down
+_GNSS_RAW = (("aiding", "gnss_raw"),)
 
 
 class GnssWorld(NamedTuple):
@@ -125,7 +130,7 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     while GNSS fixes come, ``g e_z - a`` (module docstring). In plain floats (:mod:`fuser.model.vec3`)."""
     g = params.gravity_m_s2
     gnss_world = None if gnss is None else vec3.floats(gnss.vector_m_s2)
-    raw_sigma = params.sigma_rad if gnss_world is None else math.hypot(params.sigma_rad, gnss.noise_m_s2 / vec3.norm(gnss_world))  # type: ignore[union-attr]
+    raw_sigma = params.sigma_rad if gnss is None or gnss_world is None else math.hypot(params.sigma_rad, gnss.noise_m_s2 / vec3.norm(gnss_world))
     to_inertial = vec3.rotation_rows(state.q_strapdown)
     accel = vec3.floats(accel_body_m_s2)
     f_inertial = vec3.mat_vec(to_inertial, accel)
@@ -193,18 +198,11 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
                           not state.tilt_known or restart, trusted, diagnostic, restart=restart)
 
 
-_DOWN = (0.0, 0.0, 1.0)
-""":data:`DOWN_NED` in floats."""
-_DOWN_NED_READ_ONLY = np.array(_DOWN)
-_DOWN_NED_READ_ONLY.setflags(write=False)  # shared by every state that measured down
-_GNSS_RAW = (("aiding", "gnss_raw"),)
-
-
 def _disagrees(sigma_rad: float, updates: UpdateSettings, prior_tilt_deg: float, predicted_world: Vec3,
                gnss_world_m_s2: Vec3) -> bool:
     """The raw reading, seen in the world through the prediction, is further from ``g e_z - a`` than the innovation
     gate allows a raw reading (``sigma_rad``, ``accel.sigma_rad`` with the GNSS acceleration's noise, and the state's
     tilt doubt: its heading's does not count)."""
-    cos = vec3.dot(predicted_world, gnss_world_m_s2) / math.sqrt(vec3.dot(predicted_world, predicted_world) * vec3.dot(gnss_world_m_s2, gnss_world_m_s2))
+    cos = vec3.dot(predicted_world, gnss_world_m_s2) / (vec3.norm(predicted_world) * vec3.norm(gnss_world_m_s2))
     gate = updates.innovation_gate_sigma * math.hypot(sigma_rad, math.radians(prior_tilt_deg))
     return vec3.angle_rad(cos) > gate

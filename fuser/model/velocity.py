@@ -118,6 +118,9 @@ __all__ = ["VelocityTrack", "raw_world", "tilt_doubt_deg", "track_velocity", "up
 
 FIX_2D = 2
 """MAVLink GPS_FIX_TYPE of the first fix that carries a velocity."""
+_ZERO = (0.0, 0.0, 0.0)
+_AIDING_3D = (("aiding", "gnss"),)
+_AIDING_HORIZONTAL = (("aiding", "gnss_horizontal"),)
 
 
 @dataclass(frozen=True, slots=True)
@@ -388,8 +391,3 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     if verdict.outcome == "gated":
         return GravityReading(after, None, False, False, diagnostic)
     return GravityReading(after, vector_exponent(measured_body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
-
-
-_ZERO = (0.0, 0.0, 0.0)
-_AIDING_3D = (("aiding", "gnss"),)
-_AIDING_HORIZONTAL = (("aiding", "gnss_horizontal"),)
