@@ -102,9 +102,10 @@ def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -
     update starts again as before convergence (raw readings until the state is sure again), their mean from the next."""
     q = state.q_strapdown if rotation is None else quat.normalize(quat.multiply(state.q_strapdown, rotation))
     broken = gap_s > 0.0  # the raw readings' mean too, converged or not
-    return GravityState(q, None if broken else state.accel_lp_m_s2, state.down_body, not broken and state.converged, state.tilt_known,
-                        state.gated_s, None if broken else state.raw_mean_m_s2, 0.0 if broken else state.raw_s, state.measured_body,
-                        state.gnss_checked, state.measured_world)
+    return GravityState(q_strapdown=q, accel_lp_m_s2=None if broken else state.accel_lp_m_s2, down_body=state.down_body,
+                        converged=not broken and state.converged, tilt_known=state.tilt_known, gated_s=state.gated_s,
+                        raw_mean_m_s2=None if broken else state.raw_mean_m_s2, raw_s=0.0 if broken else state.raw_s,
+                        measured_body=state.measured_body, gnss_checked=state.gnss_checked, measured_world=state.measured_world)
 
 
 def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_variance_rad2_s2: float) -> float:
@@ -169,8 +170,9 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     norm_error = abs(norm - world_norm) / g
     lowpassed_m_s2 = None if lowpassed is None else np.array(lowpassed)
     if norm_error > params.norm_gate_fraction:
-        kept = GravityState(state.q_strapdown, lowpassed_m_s2, state.down_body, converged, state.tilt_known, state.gated_s, raw_mean, raw_s,
-                            state.measured_body, gnss_checked, state.measured_world)
+        kept = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=lowpassed_m_s2, down_body=state.down_body, converged=converged,
+                            tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=raw_mean, raw_s=raw_s,
+                            measured_body=state.measured_body, gnss_checked=gnss_checked, measured_world=state.measured_world)
         return GravityReading(kept, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"), restart=restart)
     filtered_body = vec3.vec_mat(measured, to_inertial)
     down = (-filtered_body[0] / norm, -filtered_body[1] / norm, -filtered_body[2] / norm)
@@ -189,8 +191,9 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
         raw_s = raw_s + interval_s
         raw_mean = np.array(f_inertial if raw_mean is None else vec3.toward(vec3.floats(raw_mean), f_inertial, interval_s / raw_s))
     down_body, measured_world = np.array(down), np.array(world_unit) if gnss_raw else _DOWN_NED_READ_ONLY
-    after = GravityState(state.q_strapdown, lowpassed_m_s2, down_body, converged, state.tilt_known or fused, gated_s, raw_mean, raw_s,
-                         down_body, gnss_checked, measured_world)
+    after = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=lowpassed_m_s2, down_body=down_body, converged=converged,
+                         tilt_known=state.tilt_known or fused, gated_s=gated_s, raw_mean_m_s2=raw_mean, raw_s=raw_s, measured_body=down_body,
+                         gnss_checked=gnss_checked, measured_world=measured_world)
     if not fused:
         return GravityReading(after, None, False, False, diagnostic, restart=restart)
     trusted = converged and norm_error < 0.5 * params.norm_gate_fraction

@@ -349,8 +349,10 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     low-pass is dropped meanwhile, so that it starts again from the estimate if the aiding ends."""
     v = velocity.state
     if v.body_lp_m_s2 is None or v.world_lp_m_s2 is None:
-        return GravityReading(GravityState(state.q_strapdown, None, state.down_body, state.converged, state.tilt_known, state.gated_s, None, 0.0,
-                                           state.measured_body, state.gnss_checked, state.measured_world), None, False, False, None)
+        dropped = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=state.down_body, converged=state.converged,
+                               tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=None, raw_s=0.0,
+                               measured_body=state.measured_body, gnss_checked=state.gnss_checked, measured_world=state.measured_world)
+        return GravityReading(dropped, None, False, False, None)
     body = vec3.vec_mat(vec3.floats(v.body_lp_m_s2), vec3.rotation_rows(state.q_strapdown))  # S -> body
     rotation = vec3.rotation_rows(predicted_q)  # body -> NED
     world = vec3.floats(v.world_lp_m_s2)  # its vertical part g - a_v, or g without vertical velocity: free of the estimate
@@ -364,8 +366,9 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     down_norm = vec3.norm(down)
     down_body = np.array((down[0] / down_norm, down[1] / down_norm, down[2] / down_norm))
     measured_body = np.array((body[0] / body_norm, body[1] / body_norm, body[2] / body_norm))
-    held = GravityState(state.q_strapdown, None, down_body, state.converged, state.tilt_known, state.gated_s, None, 0.0, measured_body,
-                        state.gnss_checked, measured_world)
+    held = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=down_body, converged=state.converged,
+                        tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=None, raw_s=0.0, measured_body=measured_body,
+                        gnss_checked=state.gnss_checked, measured_world=measured_world)
     world_norm = vec3.norm(world)
     norm_error = abs(body_norm - world_norm) / params.gravity_m_s2
     trusted = norm_error < 0.5 * params.norm_gate_fraction
@@ -386,8 +389,9 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, interval)
     diagnostic = UpdateDiagnostic.of("gravity", verdict.outcome, "innovation" if verdict.outcome == "gated" else "", innovation, sigma,
                                      verdict.test_ratio, aiding)
-    after = GravityState(state.q_strapdown, None, down_body, True, True, verdict.gated_s, None, 0.0, measured_body, state.gnss_checked,
-                         measured_world)
+    after = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=down_body, converged=True, tilt_known=True,
+                         gated_s=verdict.gated_s, raw_mean_m_s2=None, raw_s=0.0, measured_body=measured_body, gnss_checked=state.gnss_checked,
+                         measured_world=measured_world)
     if verdict.outcome == "gated":
         return GravityReading(after, None, False, False, diagnostic)
     return GravityReading(after, vector_exponent(measured_body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
