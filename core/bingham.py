@@ -86,9 +86,10 @@ class Bingham:
         self._set(M, Z)
 
     def _set(self, M: NDArray, Z: NDArray) -> None:
-        Z = Z - Z[-1]  # eq. (3): Bingham(M, Z) = Bingham(M, Z + cI)
+        if Z.flags.writeable or Z[-1] != 0.0:  # a read-only Z with Z[-1] = 0 is another Bingham's: shared as is
+            Z = Z - Z[-1]  # eq. (3): Bingham(M, Z) = Bingham(M, Z + cI)
+            Z.setflags(write=False)
         M.setflags(write=False)
-        Z.setflags(write=False)
         self._M = M
         self._Z = Z
         self._cache: dict[tuple[str, str], object] = {}
@@ -200,9 +201,10 @@ class Bingham:
 
     def _cached(self, name: str, method: Method, compute):
         key = (name, method)
-        if key not in self._cache:
-            self._cache[key] = compute()
-        return self._cache[key]
+        value = self._cache.get(key)
+        if value is None:
+            value = self._cache[key] = compute()
+        return value
 
     def log_pdf(self, x: ArrayLike, method: Method = "saddlepoint") -> NDArray[np.float64]:
         """Log density (w.r.t. the surface measure of S^3) at unit quaternions ``x``."""

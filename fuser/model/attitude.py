@@ -25,9 +25,9 @@ uncertainty growing, until the source agrees again.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 from typing import Sequence
 
 import numpy as np
@@ -58,6 +58,10 @@ class AttitudeReading:
     diagnostics: tuple[UpdateDiagnostic, ...]
 
 
+_rotation_noise = lru_cache(maxsize=8)(rotation_noise)
+"""The likelihood's noise for a sigma (computed once per ``attitude.sigma_deg``; a Bingham is immutable)."""
+
+
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
     return math.acos(max(-1.0, min(1.0, float(a @ b))))
 
@@ -74,9 +78,8 @@ def update_attitude(params: AttitudeSettings, updates: UpdateSettings, state: At
     source has disagreed for ``attitude.reanchor_after_s``.
     """
     sigma = math.radians(params.sigma_deg)
-    likelihood_noise = rotation_noise(sigma * sigma)
+    likelihood_noise = _rotation_noise(sigma * sigma)
     gate = updates.innovation_gate_sigma * math.hypot(sigma, math.radians(tick.prior_doubt_deg))
-    state_down = quat.to_matrix(current_q)[2]
     gated_s = state.gated_s
     exponents, diagnostics = [], []
     for s in samples:
@@ -87,7 +90,7 @@ def update_attitude(params: AttitudeSettings, updates: UpdateSettings, state: At
         if innovation > gate:
             limit = math.radians(params.tilt_check_deg)
             state_wrong = (measured_down is not None and _angle(quat.to_matrix(z)[2], measured_down) <= limit
-                           and _angle(state_down, measured_down) > limit)
+                           and _angle(quat.to_matrix(current_q)[2], measured_down) > limit)
             if state_wrong or gated_s + tick.dt_s >= params.reanchor_after_s:
                 outcome = "reanchored"
             else:
@@ -99,4 +102,4 @@ def update_attitude(params: AttitudeSettings, updates: UpdateSettings, state: At
         gated_s += tick.dt_s
     elif diagnostics:
         gated_s = 0.0
-    return AttitudeReading(dataclasses.replace(state, gated_s=gated_s), tuple(exponents), tuple(diagnostics))
+    return AttitudeReading(AttitudeState(gated_s, state.last_fused_ns), tuple(exponents), tuple(diagnostics))

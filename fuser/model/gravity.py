@@ -40,7 +40,6 @@ gives the :class:`GravityReading` instead.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -49,8 +48,10 @@ import numpy as np
 
 from core import quaternion as quat
 from core.observations import vector_exponent
+from drivers.samples import Vec3
 from fuser.config import AccelSettings, BiasSettings, UpdateSettings
 from fuser.model.diagnostics import UpdateDiagnostic
+from fuser.model import vec3
 from fuser.model.gate import innovation_gate
 from fuser.model.state import GravityState
 from fuser.model.tick import TickContext
@@ -59,6 +60,11 @@ __all__ = ["DOWN_NED", "GnssWorld", "GravityReading", "tilt_time_constant_s", "t
 
 DOWN_NED = np.array([0.0, 0.0, 1.0])
 """World down in NED: the reference direction of the gravity measurement (a frame convention, not a tuning)."""
+_DOWN = (0.0, 0.0, 1.0)
+""":data:`DOWN_NED` in floats (:mod:`fuser.model.vec3`)."""
+_DOWN_NED_READ_ONLY = np.array(_DOWN)
+_DOWN_NED_READ_ONLY.setflags(write=False)  # shared by every state that measured down
+_GNSS_RAW = (("aiding", "gnss_raw"),)
 
 
 class GnssWorld(NamedTuple):
@@ -95,9 +101,11 @@ def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -
     rate) breaks the frame: the body turned by an unknown rotation, so the low-pass's memory is dropped and the
     update starts again as before convergence (raw readings until the state is sure again), their mean from the next."""
     q = state.q_strapdown if rotation is None else quat.normalize(quat.multiply(state.q_strapdown, rotation))
-    if gap_s > 0.0:  # the raw readings' mean too, converged or not
-        return dataclasses.replace(state, q_strapdown=q, accel_lp_m_s2=None, converged=False, raw_mean_m_s2=None, raw_s=0.0)
-    return dataclasses.replace(state, q_strapdown=q)
+    broken = gap_s > 0.0  # the raw readings' mean too, converged or not
+    return GravityState(q_strapdown=q, accel_lp_m_s2=None if broken else state.accel_lp_m_s2, down_body=state.down_body,
+                        converged=not broken and state.converged, tilt_known=state.tilt_known, gated_s=state.gated_s,
+                        raw_mean_m_s2=None if broken else state.raw_mean_m_s2, raw_s=0.0 if broken else state.raw_s,
+                        measured_body=state.measured_body, gnss_checked=state.gnss_checked, measured_world=state.measured_world)
 
 
 def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_variance_rad2_s2: float) -> float:
@@ -120,72 +128,84 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     has converged once its doubt is below ``updates.converged_deg``: the whole doubt's, or without a heading
     measurement (6-D: the magnetometer off) the tilt's, as the heading is never known and the raw readings would
     be taken for ever. ``gnss`` (:func:`fuser.model.velocity.raw_world`) what a raw reading measures in the world
-    while GNSS fixes come, ``g e_z - a`` (module docstring)."""
-    gnss_world_m_s2 = None if gnss is None else gnss.vector_m_s2
-    raw_sigma = params.sigma_rad if gnss is None else math.hypot(params.sigma_rad, gnss.noise_m_s2 / math.sqrt(float(gnss_world_m_s2 @ gnss_world_m_s2)))
-    to_inertial = quat.to_matrix(state.q_strapdown)
-    f_inertial = to_inertial @ accel_body_m_s2
-    rotation = quat.to_matrix(predicted_q)  # body -> NED
+    while GNSS fixes come, ``g e_z - a`` (module docstring). In plain floats (:mod:`fuser.model.vec3`)."""
+    g = params.gravity_m_s2
+    gnss_world = None if gnss is None else vec3.floats(gnss.vector_m_s2)
+    raw_sigma = params.sigma_rad if gnss is None or gnss_world is None else math.hypot(params.sigma_rad, gnss.noise_m_s2 / vec3.norm(gnss_world))
+    to_inertial = vec3.rotation_rows(state.q_strapdown)
+    accel = vec3.floats(accel_body_m_s2)
+    f_inertial = vec3.mat_vec(to_inertial, accel)
+    rotation = vec3.rotation_rows(predicted_q)  # body -> NED
     predicted_down = rotation[2]  # R^T e_z: world down in the body
     # once, at the first GNSS acceleration: what the state measured before it took every raw reading for down
-    restart = gnss_world_m_s2 is not None and not state.gnss_checked and state.tilt_known and _disagrees(
-        raw_sigma, updates, tick.prior_tilt_doubt_deg, rotation @ -accel_body_m_s2, gnss_world_m_s2)
-    if restart:  # converged on raw readings the GNSS acceleration shows wrong (a start in a turn): the fast start again
-        state = dataclasses.replace(state, accel_lp_m_s2=None, converged=False, raw_mean_m_s2=None, raw_s=0.0)
-    if gnss_world_m_s2 is not None:
-        state = dataclasses.replace(state, gnss_checked=True)
+    restart = gnss_world is not None and not state.gnss_checked and state.tilt_known and _disagrees(
+        raw_sigma, updates, tick.prior_tilt_doubt_deg, vec3.mat_vec(rotation, (-accel[0], -accel[1], -accel[2])), gnss_world)
+    # a restart: converged on raw readings the GNSS acceleration shows wrong (a start in a turn), the fast start again
+    accel_lp = None if restart else state.accel_lp_m_s2
+    raw_mean, raw_s = (None, 0.0) if restart else (state.raw_mean_m_s2, state.raw_s)
+    gnss_checked = state.gnss_checked or gnss_world is not None
     doubt_deg = tick.prior_doubt_deg if heading_measured else tick.prior_tilt_doubt_deg
     converged = not restart and (state.converged or doubt_deg < updates.converged_deg)
-    raw_mean, raw_s = state.raw_mean_m_s2, state.raw_s
     if not converged:
         lowpassed = None
     else:
         # the low-pass starts from what the estimate followed (the raw readings' mean), or from the estimate itself
-        start = state.accel_lp_m_s2
-        if start is None:
-            start = to_inertial @ (-params.gravity_m_s2 * predicted_down) if raw_mean is None else raw_mean
-        lowpassed = start + min(1.0, interval_s / tau_s) * (f_inertial - start)
+        if accel_lp is not None:
+            start = vec3.floats(accel_lp)
+        elif raw_mean is None:
+            start = vec3.mat_vec(to_inertial, (-g * predicted_down[0], -g * predicted_down[1], -g * predicted_down[2]))
+        else:
+            start = vec3.floats(raw_mean)
+        lowpassed = vec3.toward(start, f_inertial, min(1.0, interval_s / tau_s))
         raw_mean, raw_s = None, 0.0
     # a raw reading with the GNSS acceleration taken out measures g e_z - a; every other, down
-    world = DOWN_NED if lowpassed is not None or gnss_world_m_s2 is None else gnss_world_m_s2
-    world_norm = math.sqrt(float(world @ world)) if world is gnss_world_m_s2 else params.gravity_m_s2
-    world_unit = world / math.sqrt(float(world @ world))
+    gnss_raw = lowpassed is None and gnss_world is not None
+    if gnss_raw:
+        world_norm = vec3.norm(gnss_world)  # type: ignore[arg-type]
+        world_unit = (gnss_world[0] / world_norm, gnss_world[1] / world_norm, gnss_world[2] / world_norm)  # type: ignore[index]
+    else:
+        world_norm, world_unit = g, _DOWN
     measured = f_inertial if lowpassed is None else lowpassed
-    norm = math.sqrt(float(measured @ measured))
-    norm_error = abs(norm - world_norm) / params.gravity_m_s2
+    norm = vec3.norm(measured)
+    norm_error = abs(norm - world_norm) / g
+    lowpassed_m_s2 = None if lowpassed is None else np.array(lowpassed)
     if norm_error > params.norm_gate_fraction:
-        kept = dataclasses.replace(state, accel_lp_m_s2=lowpassed, converged=converged, raw_mean_m_s2=raw_mean, raw_s=raw_s)
+        kept = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=lowpassed_m_s2, down_body=state.down_body, converged=converged,
+                            tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=raw_mean, raw_s=raw_s,
+                            measured_body=state.measured_body, gnss_checked=gnss_checked, measured_world=state.measured_world)
         return GravityReading(kept, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"), restart=restart)
-    filtered_body = measured @ to_inertial
-    down_body = -filtered_body / norm
+    filtered_body = vec3.vec_mat(measured, to_inertial)
+    down = (-filtered_body[0] / norm, -filtered_body[1] / norm, -filtered_body[2] / norm)
     if converged:  # Q = q T / dt over the interval T
         sigma = math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau_s / max(interval_s, 1e-6)
     else:
-        sigma = raw_sigma if world is gnss_world_m_s2 else params.sigma_rad
-    innovation = math.acos(max(-1.0, min(1.0, float((rotation @ down_body) @ world_unit))))
+        sigma = raw_sigma if gnss_raw else params.sigma_rad
+    innovation = vec3.angle_rad(vec3.dot(vec3.mat_vec(rotation, down), world_unit))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, tick.dt_s)
     # nothing to gate against before the first tilt, nor in a fast start the GNSS acceleration called for
     outcome, gated_s = (verdict.outcome, verdict.gated_s) if state.tilt_known and not restart else ("fused", state.gated_s)
     diagnostic = UpdateDiagnostic.of("gravity", outcome, "innovation" if outcome == "gated" else "", innovation, sigma, verdict.test_ratio,
-                                     (("aiding", "gnss_raw"),) if world is gnss_world_m_s2 else ())
+                                     _GNSS_RAW if gnss_raw else ())
     fused = outcome != "gated"
-    if fused and lowpassed is None and world is DOWN_NED:  # a raw reading the estimate follows as down, into their mean
+    if fused and lowpassed is None and not gnss_raw:  # a raw reading the estimate follows as down, into their mean
         raw_s = raw_s + interval_s
-        raw_mean = f_inertial if raw_mean is None else raw_mean + (interval_s / raw_s) * (f_inertial - raw_mean)
-    after = dataclasses.replace(state, accel_lp_m_s2=lowpassed, down_body=down_body, converged=converged, tilt_known=state.tilt_known or fused,
-                                gated_s=gated_s, raw_mean_m_s2=raw_mean, raw_s=raw_s, measured_body=down_body, measured_world=world_unit)
+        raw_mean = np.array(f_inertial if raw_mean is None else vec3.toward(vec3.floats(raw_mean), f_inertial, interval_s / raw_s))
+    down_body, measured_world = np.array(down), np.array(world_unit) if gnss_raw else _DOWN_NED_READ_ONLY
+    after = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=lowpassed_m_s2, down_body=down_body, converged=converged,
+                         tilt_known=state.tilt_known or fused, gated_s=gated_s, raw_mean_m_s2=raw_mean, raw_s=raw_s, measured_body=down_body,
+                         gnss_checked=gnss_checked, measured_world=measured_world)
     if not fused:
         return GravityReading(after, None, False, False, diagnostic, restart=restart)
     trusted = converged and norm_error < 0.5 * params.norm_gate_fraction
-    return GravityReading(after, vector_exponent(-filtered_body, world_unit, sigma), not state.tilt_known or restart, trusted, diagnostic,
-                          restart=restart)
+    return GravityReading(after, vector_exponent(down_body, measured_world, sigma),
+                          not state.tilt_known or restart, trusted, diagnostic, restart=restart)
 
 
-def _disagrees(sigma_rad: float, updates: UpdateSettings, prior_tilt_deg: float, predicted_world: np.ndarray,
-               gnss_world_m_s2: np.ndarray) -> bool:
+def _disagrees(sigma_rad: float, updates: UpdateSettings, prior_tilt_deg: float, predicted_world: Vec3,
+               gnss_world_m_s2: Vec3) -> bool:
     """The raw reading, seen in the world through the prediction, is further from ``g e_z - a`` than the innovation
     gate allows a raw reading (``sigma_rad``, ``accel.sigma_rad`` with the GNSS acceleration's noise, and the state's
     tilt doubt: its heading's does not count)."""
-    cos = float(predicted_world @ gnss_world_m_s2) / math.sqrt(float(predicted_world @ predicted_world) * float(gnss_world_m_s2 @ gnss_world_m_s2))
+    cos = vec3.dot(predicted_world, gnss_world_m_s2) / (vec3.norm(predicted_world) * vec3.norm(gnss_world_m_s2))
     gate = updates.innovation_gate_sigma * math.hypot(sigma_rad, math.radians(prior_tilt_deg))
-    return math.acos(max(-1.0, min(1.0, cos))) > gate
+    return vec3.angle_rad(cos) > gate

@@ -32,9 +32,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from core import quaternion as quat
 from core.observations import heading_exponent, vector_exponent
 from fuser.config import BiasSettings, MagSettings, UpdateSettings
+from fuser.model import vec3
 from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model.gate import innovation_gate
 from fuser.model.state import GravityState, HeadingState
@@ -57,7 +57,6 @@ class FieldReference:
         field = np.asarray(field_ned_gauss, dtype=float)
         norm = float(np.linalg.norm(field))
         return cls(norm, field / norm, math.atan2(field[1], field[0]))
-
 
 @dataclass(frozen=True, slots=True)
 class HeadingReading:
@@ -90,21 +89,22 @@ def update_heading(params: MagSettings, updates: UpdateSettings, reference: Fiel
                    tick: TickContext, mag_body_gauss: np.ndarray, current_q: np.ndarray, sigma_rad: float) -> HeadingReading:
     """The heading update of one tick from the tick's mean field in the state's body frame, against the
     current estimate ``current_q`` and the measured down in ``gravity``. ``state`` is the heading's with
-    this reading's time already noted."""
+    this reading's time already noted. In plain floats (:mod:`fuser.model.vec3`)."""
     if not gravity.tilt_known:
         return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "before_tilt"))
-    norm = math.sqrt(float(mag_body_gauss @ mag_body_gauss))
+    mag = vec3.floats(mag_body_gauss)
+    norm = vec3.norm(mag)
     if abs(norm - reference.norm_gauss) > params.norm_gate_fraction * reference.norm_gauss:
         return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "norm"))
     # the dip: the field's angle to the measured specific force, both in the body frame, against the reference
     # field's to the world direction that was measured as (down, or gravity minus the GNSS acceleration): neither
     # depends on the estimate, so that a wrong estimate cannot lock the magnetometer out
-    measured = math.acos(max(-1.0, min(1.0, float(mag_body_gauss @ gravity.measured_body) / norm)))
-    expected = math.acos(max(-1.0, min(1.0, float(reference.unit_ned @ gravity.measured_world))))
+    measured = vec3.angle_rad(vec3.dot(mag, vec3.floats(gravity.measured_body)) / norm)
+    expected = vec3.angle_rad(vec3.dot(vec3.floats(reference.unit_ned), vec3.floats(gravity.measured_world)))
     if abs(math.degrees(measured - expected)) > params.dip_gate_deg:
         return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "dip"))
-    m_world = quat.rotate(current_q, mag_body_gauss)
-    error = math.remainder(reference.heading_rad - math.atan2(m_world[1], m_world[0]), 2.0 * math.pi)
+    north, east, _ = vec3.rotation_rows(current_q)  # body -> NED: the field's north and east in the world
+    error = math.remainder(reference.heading_rad - math.atan2(vec3.dot(east, mag), vec3.dot(north, mag)), 2.0 * math.pi)
     verdict = innovation_gate(updates, state.gated_s, abs(error), max(sigma_rad, params.sigma_rad), tick.prior_doubt_deg, tick.dt_s)
     diagnostic = UpdateDiagnostic.of("heading", verdict.outcome, "innovation" if verdict.outcome == "gated" else "",
                                      abs(error), sigma_rad, verdict.test_ratio)

@@ -56,14 +56,12 @@ for little; it reported 5 deg before this, 12-15 deg with it.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
 
-from core import quaternion as quat
-
 from fuser.config import AccelSettings
+from fuser.model import vec3
 from fuser.model.state import GravityState, UnaidedState
 
 __all__ = ["cleared", "corrected", "excess_norm_sq_m2_s4", "followed", "learn_norm", "unaided_target", "unseen_variances_rad2"]
@@ -73,7 +71,8 @@ def excess_norm_sq_m2_s4(params: AccelSettings, lowpassed_m_s2: np.ndarray | Non
     """``|f_lp|^2 - g^2`` of the low-passed specific force, signed (0 with no low-pass yet)."""
     if lowpassed_m_s2 is None:
         return 0.0
-    return float(lowpassed_m_s2 @ lowpassed_m_s2) - params.gravity_m_s2**2
+    x, y, z = vec3.floats(lowpassed_m_s2)
+    return (x * x + y * y + z * z) - params.gravity_m_s2**2
 
 
 def learn_norm(params: AccelSettings, state: UnaidedState, gravity: GravityState, accel_body_m_s2: np.ndarray, interval_s: float,
@@ -83,16 +82,17 @@ def learn_norm(params: AccelSettings, state: UnaidedState, gravity: GravityState
     that time constant), with or without GNSS. A gyro gap breaks the frame: the mean's direction in it is lost,
     its norm (the sensor's) is not, so the mean is kept along the last measured down (``gravity.down_body``)
     and learns again from the next tick."""
-    to_s = quat.to_matrix(gravity.q_strapdown)
-    f_s = to_s @ accel_body_m_s2
+    to_s = vec3.rotation_rows(gravity.q_strapdown)
+    if state.norm_mean_m_s2 is not None and frame_broken:
+        norm = vec3.norm(vec3.floats(state.norm_mean_m_s2))
+        dx, dy, dz = vec3.floats(gravity.down_body)
+        return UnaidedState(state.excess_m2_s4, np.array(vec3.mat_vec(to_s, (-norm * dx, -norm * dy, -norm * dz))), state.norm_mean_s)
+    f_s = vec3.mat_vec(to_s, vec3.floats(accel_body_m_s2))
     if state.norm_mean_m_s2 is None:
-        return dataclasses.replace(state, norm_mean_m_s2=f_s, norm_mean_s=interval_s)
-    if frame_broken:
-        norm = math.sqrt(float(state.norm_mean_m_s2 @ state.norm_mean_m_s2))
-        return dataclasses.replace(state, norm_mean_m_s2=to_s @ (-norm * gravity.down_body))
+        return UnaidedState(state.excess_m2_s4, np.array(f_s), interval_s)
     seconds = state.norm_mean_s + interval_s
     alpha = interval_s / min(seconds, params.unaided_norm_window_s)
-    return dataclasses.replace(state, norm_mean_m_s2=state.norm_mean_m_s2 + alpha * (f_s - state.norm_mean_m_s2), norm_mean_s=seconds)
+    return UnaidedState(state.excess_m2_s4, np.array(vec3.toward(vec3.floats(state.norm_mean_m_s2), f_s, alpha)), seconds)
 
 
 def _baseline_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
@@ -146,12 +146,12 @@ def followed(params: AccelSettings, state: UnaidedState, target_m2_s4: float, in
     tolerance: a norm persistently low (the strapdown frame turning with an unlearnt bias) must not hide a turn."""
     lagged = state.excess_m2_s4 + min(1.0, interval_s / tau_s) * (target_m2_s4 - state.excess_m2_s4)
     floor = _baseline_m2_s4(params, state) - _allowed_m2_s4(params, state)
-    return dataclasses.replace(state, excess_m2_s4=max(lagged, floor))
+    return UnaidedState(max(lagged, floor), state.norm_mean_m_s2, state.norm_mean_s)
 
 
 def cleared(params: AccelSettings, state: UnaidedState) -> UnaidedState:
     """No unseen acceleration: the autopilot's attitude was fused, whose down is its own estimator's."""
-    return dataclasses.replace(state, excess_m2_s4=_nothing_unseen_m2_s4(params, state))
+    return UnaidedState(_nothing_unseen_m2_s4(params, state), state.norm_mean_m_s2, state.norm_mean_s)
 
 
 def corrected(params: AccelSettings, state: UnaidedState, prior_tilt_deg: float, sigma_deg: float, bound_rad: float) -> UnaidedState:
@@ -163,11 +163,11 @@ def corrected(params: AccelSettings, state: UnaidedState, prior_tilt_deg: float,
     innovation plus twice its noise), which the excess cannot tell from a vertical acceleration (a take-off)."""
     tilt_rad = _unseen_tilt_rad(params, state)
     if tilt_rad == 0.0:  # the aided reading takes out what the excess within the tolerance may have been
-        return dataclasses.replace(state, excess_m2_s4=min(state.excess_m2_s4, _nothing_unseen_m2_s4(params, state)))
+        return UnaidedState(min(state.excess_m2_s4, _nothing_unseen_m2_s4(params, state)), state.norm_mean_m_s2, state.norm_mean_s)
     prior = 0.5 * math.radians(prior_tilt_deg) ** 2
     gain = prior / (prior + math.radians(sigma_deg) ** 2) if prior > 0.0 else 0.0
     tilt_rad = min((1.0 - gain) * tilt_rad, bound_rad)
-    return dataclasses.replace(state, excess_m2_s4=_hidden_m2_s4(params, state) + (params.gravity_m_s2 * math.tan(tilt_rad)) ** 2)
+    return UnaidedState(_hidden_m2_s4(params, state) + (params.gravity_m_s2 * math.tan(tilt_rad)) ** 2, state.norm_mean_m_s2, state.norm_mean_s)
 
 
 def _unseen_tilt_rad(params: AccelSettings, state: UnaidedState) -> float:

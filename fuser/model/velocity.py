@@ -93,7 +93,6 @@ update takes over from the estimate, until pairs come again.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from bisect import bisect_left
 from dataclasses import dataclass
@@ -102,16 +101,16 @@ from typing import Sequence
 import numpy as np
 from numba import njit
 
-from core import quaternion as quat
 from core.bingham import Bingham
 from core.bingham_kernels import down_alignment_sq
 from core.normalization import Method
 from core.observations import vector_exponent
-from drivers.samples import GnssSample
+from drivers.samples import GnssSample, Vec3
 from fuser.config import AccelSettings, GnssSettings, UpdateSettings
+from fuser.model import vec3
 from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model.gate import innovation_gate
-from fuser.model.gravity import DOWN_NED, GnssWorld, GravityReading
+from fuser.model.gravity import GnssWorld, GravityReading
 from fuser.model.state import GnssStream, GravityState, VelocityState
 from fuser.model.tick import TickContext
 
@@ -119,6 +118,9 @@ __all__ = ["VelocityTrack", "raw_world", "tilt_doubt_deg", "track_velocity", "up
 
 FIX_2D = 2
 """MAVLink GPS_FIX_TYPE of the first fix that carries a velocity."""
+_ZERO = (0.0, 0.0, 0.0)
+_AIDING_3D = (("aiding", "gnss"),)
+_AIDING_HORIZONTAL = (("aiding", "gnss_horizontal"),)
 
 
 @dataclass(frozen=True, slots=True)
@@ -136,10 +138,6 @@ class VelocityTrack:
     """A fix within ``max_age_s`` is faster than ``gnss.moving_speed_m_s``: the vehicle is not at rest."""
     diagnostics: tuple[UpdateDiagnostic, ...]
     events: tuple[str, ...]
-
-
-def _norm(v: np.ndarray) -> float:
-    return math.sqrt(float(v @ v))
 
 
 def tilt_doubt_deg(state: Bingham, method: Method) -> float:
@@ -163,32 +161,42 @@ def _tilt_variance(M: np.ndarray, moments: np.ndarray) -> float:
     return variance
 
 
-def _force_at(knots: Sequence[tuple[int, np.ndarray, np.ndarray]], t_ns: int) -> np.ndarray | None:
+def _force_at(knots: Sequence[tuple[int, np.ndarray, np.ndarray]], t_ns: int) -> Vec3 | None:
     """The integrated specific force at ``t_ns`` (linear between knots), None outside the history."""
     if not knots or t_ns < knots[0][0] or t_ns > knots[-1][0]:
         return None
-    i = bisect_left(knots, t_ns, key=lambda k: k[0])
+    i = bisect_left(knots, t_ns, key=_knot_ns)
     t1, f1, _ = knots[i]
     if t1 == t_ns or i == 0:
-        return f1
+        return vec3.floats(f1)
     t0, f0, _ = knots[i - 1]
-    return f0 + (f1 - f0) * ((t_ns - t0) / (t1 - t0))
+    return vec3.toward(vec3.floats(f0), vec3.floats(f1), (t_ns - t0) / (t1 - t0))
 
 
-def _knots(params: GnssSettings, state: VelocityState, force_s_m_s2: np.ndarray | None, tick_ns: int, dt_ns: int,
+def _knot_ns(knot: tuple[int, np.ndarray, np.ndarray]) -> int:
+    return knot[0]
+
+
+def _knots(params: GnssSettings, state: VelocityState, force_s_m_s2: Vec3 | None, tick_ns: int, dt_ns: int,
            broken: bool) -> tuple[tuple[int, np.ndarray, np.ndarray], ...]:
     """The accelerometer's history after this tick: its mean specific force in S (held without a sample),
     integrated; dropped when the strapdown frame broke (a gyro gap: the frame before is not this one)."""
     knots = () if broken else state.force_knots
     if not knots:
         zero = np.zeros(3)
-        force = zero if force_s_m_s2 is None else force_s_m_s2
+        force = zero if force_s_m_s2 is None else np.array(force_s_m_s2)
         return ((tick_ns - dt_ns, zero, force), (tick_ns, force * (dt_ns * 1e-9), force))
     last_ns, integral, held = knots[-1]
-    force = held if force_s_m_s2 is None else force_s_m_s2
+    force = held if force_s_m_s2 is None else np.array(force_s_m_s2)
     horizon_ns = tick_ns - round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9) - 2 * dt_ns
-    first = bisect_left(knots, horizon_ns, key=lambda k: k[0])
-    return knots[max(0, first - 1):] + ((tick_ns, integral + force * ((tick_ns - last_ns) * 1e-9), force),)
+    # the first knot kept is the last one before the horizon (the horizon moves a tick per tick: a step or two)
+    first = 0
+    while first + 1 < len(knots) and knots[first + 1][0] < horizon_ns:
+        first += 1
+    step_s = (tick_ns - last_ns) * 1e-9
+    fx, fy, fz = force.tolist()
+    ix, iy, iz = integral.tolist()
+    return knots[first:] + ((tick_ns, np.array((ix + fx * step_s, iy + fy * step_s, iz + fz * step_s)), force),)
 
 
 def _noise_after(variance: float, covariance: float, alpha: float, span_s: float, noise_m_s: float,
@@ -220,14 +228,14 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
     heading's uncertainty (6-D fusion too)."""
     if not params.enabled or not (fixes or state.streams):
         return VelocityTrack(state, False, False, 0.0, False, (), ())
-    predicted_q = predicted.mode
     may_aid = gravity.tilt_known and not frame_broken and tilt_doubt_deg(predicted, method) < updates.converged_deg
-    to_s = quat.to_matrix(gravity.q_strapdown)  # body -> S
-    force_s = None if accel_body_m_s2 is None else to_s @ accel_body_m_s2
+    to_s = vec3.rotation_rows(gravity.q_strapdown)  # body -> S
+    force_s = None if accel_body_m_s2 is None else vec3.mat_vec(to_s, vec3.floats(accel_body_m_s2))
     knots = _knots(params, state, force_s, tick_ns, dt_ns, frame_broken)
     g = gravity_params.gravity_m_s2
     max_age_ns = round(params.max_age_s * 1e9)
-    streams = {s.key: s for s in state.streams}
+    streams = {s.key: s for s in state.streams} if fixes else {}
+    to_world = None  # S -> NED through the prediction, for the jump check: once a pair comes
     body_lp, world_lp = state.body_lp_m_s2, state.world_lp_m_s2
     vertical, noise_var, noise_cov, fused = state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3, False
     recent_world, recent_ns = state.recent_world_m_s2, state.recent_ns
@@ -252,34 +260,36 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
             continue
         span_s = (measured - previous.measured_ns) * 1e-9
         both_vertical = fix.vertical_velocity and previous.vertical
-        accel = (np.asarray(fix.vel_ned_m_s) - np.asarray(previous.vel_ned_m_s)) / span_s
-        if not both_vertical:
-            accel[2] = 0.0  # unknown: left to the low-pass (module docstring)
+        (v1x, v1y, v1z), (v0x, v0y, v0z) = fix.vel_ned_m_s, previous.vel_ned_m_s
+        # the vertical unknown without vertical velocity: left to the low-pass (module docstring)
+        accel = ((v1x - v0x) / span_s, (v1y - v0y) / span_s, (v1z - v0z) / span_s if both_vertical else 0.0)
+        gravity_less_accel = (-accel[0], -accel[1], g - accel[2])  # g e_z - a
         # aiding or not, into what the gravity update's raw readings measure (gravity.update_gravity)
         mid_ns = (measured + previous.measured_ns) // 2
         if recent_world is None or recent_ns is None or mid_ns - recent_ns > max_age_ns:
-            recent_world, (recent_var, recent_cov) = g * DOWN_NED - accel, _noise_after(0.0, 0.0, 1.0, span_s, noise_m_s, previous.noise_m_s)
+            recent_world = np.array(gravity_less_accel)
+            recent_var, recent_cov = _noise_after(0.0, 0.0, 1.0, span_s, noise_m_s, previous.noise_m_s)
         else:
             raw_alpha = min(1.0, span_s / params.raw_lowpass_s)
-            recent_world = recent_world + raw_alpha * (g * DOWN_NED - accel - recent_world)
+            recent_world = np.array(vec3.toward(vec3.floats(recent_world), gravity_less_accel, raw_alpha))
             recent_var, recent_cov = _noise_after(recent_var, recent_cov, raw_alpha, span_s, noise_m_s, previous.noise_m_s)
         recent_ns = mid_ns
         start, end = _force_at(knots, previous.measured_ns), _force_at(knots, measured)
         if start is None or end is None:
             diagnostics.append(UpdateDiagnostic.of("velocity", "gated", "gap"))
             continue
-        force = (end - start) / span_s  # mean specific force over the GNSS interval, in S
+        force = ((end[0] - start[0]) / span_s, (end[1] - start[1]) / span_s, (end[2] - start[2]) / span_s)  # mean over the interval, in S
         # the jump check: against the accelerometer's acceleration, rotated by the estimate (S -> NED), only when a pair comes
-        predicted = (quat.to_matrix(predicted_q) @ to_s.T) @ force + g * DOWN_NED
-        difference = accel - predicted
-        if not both_vertical:
-            difference[2] = 0.0
-        variance = (2.0 * (max(noise_m_s, previous.noise_m_s) / span_s) ** 2 + (_norm(force) * math.radians(prior_doubt_deg)) ** 2
+        if to_world is None:
+            to_world = vec3.rotation_rows(predicted.mode)
+        expected = vec3.mat_vec(to_world, vec3.vec_mat(force, to_s))
+        difference = (accel[0] - expected[0], accel[1] - expected[1], accel[2] - (expected[2] + g) if both_vertical else 0.0)
+        variance = (2.0 * (max(noise_m_s, previous.noise_m_s) / span_s) ** 2 + (vec3.norm(force) * math.radians(prior_doubt_deg)) ** 2
                     + params.accel_error_m_s2**2)
         gate = params.gate_sigma * math.sqrt(variance)
-        values = (("accel_innovation_m_s2", _norm(difference)), ("accel_gate_m_s2", gate), ("interval_s", span_s),
-                  ("vertical", both_vertical))
-        ratio = (_norm(difference) / gate) ** 2
+        innovation_m_s2 = vec3.norm(difference)
+        values = (("accel_innovation_m_s2", innovation_m_s2), ("accel_gate_m_s2", gate), ("interval_s", span_s), ("vertical", both_vertical))
+        ratio = (innovation_m_s2 / gate) ** 2
         if ratio > 1.0:
             diagnostics.append(UpdateDiagnostic("velocity", "gated", "jump", test_ratio=ratio, values=values))
             continue
@@ -292,9 +302,9 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
                 diagnostics.append(UpdateDiagnostic("velocity", "gated", "unconverged", test_ratio=ratio, values=values))
                 continue
             alpha, noise_var, noise_cov = 1.0, 0.0, 0.0  # the low-pass starts from this pair: unbiased, its noise counted
-            body_lp = world_lp = np.zeros(3)
-        body_lp = body_lp + alpha * (-force - body_lp)
-        world_lp = world_lp + alpha * (g * DOWN_NED - accel - world_lp)
+            body_lp = world_lp = _ZERO
+        body_lp = np.array(vec3.toward(vec3.floats(body_lp), (-force[0], -force[1], -force[2]), alpha))
+        world_lp = np.array(vec3.toward(vec3.floats(world_lp), gravity_less_accel, alpha))
         noise_var, noise_cov = _noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous.noise_m_s)
         vertical, fused = both_vertical, True
         diagnostics.append(UpdateDiagnostic("velocity", "fused", test_ratio=ratio, values=values))
@@ -306,7 +316,7 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
         events = ("gnss_lost",)
     if not active:
         body_lp = world_lp = None
-    kept = tuple(streams[k] for k in sorted(streams, key=lambda k: (k[0], k[1])))
+    kept = tuple(streams[k] for k in sorted(streams, key=lambda k: (k[0], k[1]))) if fixes else state.streams
     newest = max((s.measured_ns for s in kept), default=None)
     moving = newest is not None and any(newest - s.measured_ns <= max_age_ns and math.hypot(*s.vel_ned_m_s) > params.moving_speed_m_s
                                         for s in kept)
@@ -326,7 +336,8 @@ def raw_world(params: GnssSettings, gravity: AccelSettings, state: VelocityState
     if tick_ns - state.recent_ns > round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9):
         return None
     noise_m_s2 = math.sqrt(max(state.recent_noise_var_m2_s4, 0.0))
-    if _norm(gravity.gravity_m_s2 * DOWN_NED - state.recent_world_m_s2) <= 3.0 * noise_m_s2:
+    x, y, z = vec3.floats(state.recent_world_m_s2)
+    if vec3.norm((-x, -y, gravity.gravity_m_s2 - z)) <= 3.0 * noise_m_s2:  # |g e_z - (g e_z - a)|
         return None
     return GnssWorld(state.recent_world_m_s2, noise_m_s2)
 
@@ -338,18 +349,27 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     low-pass is dropped meanwhile, so that it starts again from the estimate if the aiding ends."""
     v = velocity.state
     if v.body_lp_m_s2 is None or v.world_lp_m_s2 is None:
-        return GravityReading(dataclasses.replace(state, accel_lp_m_s2=None, raw_mean_m_s2=None, raw_s=0.0), None, False, False, None)
-    body = quat.to_matrix(state.q_strapdown).T @ v.body_lp_m_s2  # S -> body
-    rotation = quat.to_matrix(predicted_q)  # body -> NED
-    world = v.world_lp_m_s2  # its vertical part g - a_v, or g without vertical velocity: free of the estimate
-    body_norm, measured_norm = _norm(body), _norm(world)
+        dropped = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=state.down_body, converged=state.converged,
+                               tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=None, raw_s=0.0,
+                               measured_body=state.measured_body, gnss_checked=state.gnss_checked, measured_world=state.measured_world)
+        return GravityReading(dropped, None, False, False, None)
+    body = vec3.vec_mat(vec3.floats(v.body_lp_m_s2), vec3.rotation_rows(state.q_strapdown))  # S -> body
+    rotation = vec3.rotation_rows(predicted_q)  # body -> NED
+    world = vec3.floats(v.world_lp_m_s2)  # its vertical part g - a_v, or g without vertical velocity: free of the estimate
+    body_norm, measured_norm = vec3.norm(body), vec3.norm(world)
+    measured_world = np.array((world[0] / measured_norm, world[1] / measured_norm, world[2] / measured_norm))
     if not v.vertical:  # the vertical is unknown: measured are the horizontal components only (module docstring)
-        world = np.array([world[0], world[1], float(rotation[2] @ body)])
+        world = (world[0], world[1], vec3.dot(rotation[2], body))
     # down in the body (the autopilot attitude's check), every tick: gravity's direction a - f, a seen through the estimate
-    down = body - rotation.T @ (world - params.gravity_m_s2 * DOWN_NED)
-    held = dataclasses.replace(state, accel_lp_m_s2=None, down_body=down / _norm(down), raw_mean_m_s2=None, raw_s=0.0,
-                               measured_body=body / body_norm, measured_world=v.world_lp_m_s2 / measured_norm)
-    world_norm = _norm(world)
+    seen = vec3.vec_mat((world[0], world[1], world[2] - params.gravity_m_s2), rotation)  # R^T (w - g e_z)
+    down = (body[0] - seen[0], body[1] - seen[1], body[2] - seen[2])
+    down_norm = vec3.norm(down)
+    down_body = np.array((down[0] / down_norm, down[1] / down_norm, down[2] / down_norm))
+    measured_body = np.array((body[0] / body_norm, body[1] / body_norm, body[2] / body_norm))
+    held = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=down_body, converged=state.converged,
+                        tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=None, raw_s=0.0, measured_body=measured_body,
+                        gnss_checked=state.gnss_checked, measured_world=measured_world)
+    world_norm = vec3.norm(world)
     norm_error = abs(body_norm - world_norm) / params.gravity_m_s2
     trusted = norm_error < 0.5 * params.norm_gate_fraction
     if not velocity.fused:
@@ -357,11 +377,11 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
         # correction as without GNSS; in motion only the ticks that measured the tilt teach it: learning every tick
         # let the bias run away in the JSBSim flight's sustained turns (1.8 deg/s off while reporting 0.17).
         return GravityReading(held, None, False, trusted and not velocity.moving, None)
-    aiding = (("aiding", "gnss" if v.vertical else "gnss_horizontal"),)
+    aiding = _AIDING_3D if v.vertical else _AIDING_HORIZONTAL
     if norm_error > params.norm_gate_fraction:
         return GravityReading(held, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm", values=aiding))
-    predicted_world = rotation @ body
-    innovation = math.acos(max(-1.0, min(1.0, float(predicted_world @ world) / (body_norm * world_norm))))
+    predicted_world = vec3.mat_vec(rotation, body)
+    innovation = vec3.angle_rad(vec3.dot(predicted_world, world) / (body_norm * world_norm))
     interval = velocity.interval_s
     correction = math.sqrt(tick.process_variance_rad2 * interval / tick.dt_s) * tau_s / max(interval, 1e-6)
     noise = math.sqrt(max(v.noise_var_m2_s4, 0.0)) / world_norm
@@ -369,7 +389,9 @@ def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: Upd
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, interval)
     diagnostic = UpdateDiagnostic.of("gravity", verdict.outcome, "innovation" if verdict.outcome == "gated" else "", innovation, sigma,
                                      verdict.test_ratio, aiding)
-    after = dataclasses.replace(held, converged=True, tilt_known=True, gated_s=verdict.gated_s)
+    after = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=down_body, converged=True, tilt_known=True,
+                         gated_s=verdict.gated_s, raw_mean_m_s2=None, raw_s=0.0, measured_body=measured_body, gnss_checked=state.gnss_checked,
+                         measured_world=measured_world)
     if verdict.outcome == "gated":
         return GravityReading(after, None, False, False, diagnostic)
-    return GravityReading(after, vector_exponent(body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
+    return GravityReading(after, vector_exponent(measured_body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
