@@ -397,6 +397,10 @@ class UpdateSettings(Settings):
     """After this long of continuous gating a reading is fused again, so that a wrong state can recover."""
     converged_deg: Annotated[float, Range(gt=0, unit="deg")] = 10.0
     """Above this RMS uncertainty the state counts as unconverged (raw accelerometer, fast fixes)."""
+    fast_start_interval_s: Seconds = 0.01
+    """The spacing of the readings the fast start's sigmas (``accel.sigma_rad``, ``mag.sigma_rad``) are for: readings
+    closer together count for less (their sigma times ``sqrt(this / interval)``), so that the fast start gathers
+    the same evidence in the same time at any loop rate; sparser ones count as given."""
 
 
 @dataclass(frozen=True)

@@ -138,3 +138,15 @@ def test_without_a_heading_measurement_the_tilt_alone_decides_convergence():
     assert six_d.state.converged and six_d.state.accel_lp_m_s2 is not None
     nine_d = update_gravity(AccelSettings(), UpdateSettings(), level, unsure_heading, at_rest, 3.0, quat.IDENTITY.copy(), 0.01)
     assert not nine_d.state.converged and nine_d.state.accel_lp_m_s2 is None
+
+
+@pytest.mark.parametrize("interval_s, factor", [(0.0025, 2.0), (0.005, math.sqrt(2.0)), (0.01, 1.0), (0.1, 1.0)])
+def test_a_fast_start_reading_counts_per_ten_milliseconds(interval_s, factor):
+    """A raw reading's sigma is ``accel.sigma_rad`` per ``updates.fast_start_interval_s`` (10 ms) of readings:
+    readings every 2.5 / 5 ms are 2 / sqrt(2) times as noisy (the same information per second, ``1 / (sigma^2 T)``),
+    sparser ones as given. Level and at rest, at a cold start (the prior's doubt above ``updates.converged_deg``)."""
+    cold = TickContext(dt_s=0.01, process_variance_rad2=1e-6, prior_doubt_deg=60.0, prior_tilt_doubt_deg=50.0)
+    reading = update_gravity(AccelSettings(), UpdateSettings(), GravityState(), cold, np.array([0.0, 0.0, -G]), 3.0,
+                             quat.IDENTITY.copy(), interval_s)
+    assert not reading.state.converged and reading.apply_now
+    assert reading.diagnostic.sigma_deg == pytest.approx(math.degrees(AccelSettings().sigma_rad * factor), rel=1e-12)

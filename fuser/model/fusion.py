@@ -209,7 +209,7 @@ class FusionModel:
         if mag is not None:
             since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
             heading = HeadingState(heading.gated_s, tick.t_ns)
-            sigma = heading_sigma_rad(cfg.mag, cfg.bias, gravity.converged, context, bias.variance_rad2_s2, since)
+            sigma = heading_sigma_rad(cfg.mag, cfg.bias, cfg.updates, gravity.converged, context, bias.variance_rad2_s2, since)
             h = update_heading(cfg.mag, cfg.updates, _field_reference(field.field_ned_gauss), heading, gravity, context, mag, belief.mode, sigma)
             heading = h.state
             diagnostics.append(h.diagnostic)

@@ -15,7 +15,8 @@ constant is the low-pass's ``tau`` (``sigma^2 = Q (tau/T)^2`` for readings
 every ``T`` seconds and the process variance ``Q`` accumulated over ``T``),
 which keeps the reported tilt uncertainty honest whatever the IMU rate.
 Until the state first converges the raw reading is used with
-``accel.sigma_rad``, for a fast start; never after, when a raw reading
+``accel.sigma_rad`` (per ``updates.fast_start_interval_s`` of readings,
+:func:`fuser.model.gate.fast_start_sigma_rad`), for a fast start; never after, when a raw reading
 mid-manoeuvre is the misleading one. The low-pass starts at convergence from
 the mean of the raw readings fused before it (in the strapdown frame): what the
 estimate has followed, vibration averaged, and in a turn with the turn's norm,
@@ -52,7 +53,7 @@ from drivers.samples import Vec3
 from fuser.config import AccelSettings, BiasSettings, UpdateSettings
 from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model import vec3
-from fuser.model.gate import innovation_gate
+from fuser.model.gate import fast_start_sigma_rad, innovation_gate
 from fuser.model.state import GravityState
 from fuser.model.tick import TickContext
 
@@ -131,7 +132,8 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     while GNSS fixes come, ``g e_z - a`` (module docstring). In plain floats (:mod:`fuser.model.vec3`)."""
     g = params.gravity_m_s2
     gnss_world = None if gnss is None else vec3.floats(gnss.vector_m_s2)
-    raw_sigma = params.sigma_rad if gnss is None or gnss_world is None else math.hypot(params.sigma_rad, gnss.noise_m_s2 / vec3.norm(gnss_world))
+    fast_sigma = fast_start_sigma_rad(updates, params.sigma_rad, interval_s)
+    raw_sigma = fast_sigma if gnss is None or gnss_world is None else math.hypot(fast_sigma, gnss.noise_m_s2 / vec3.norm(gnss_world))
     to_inertial = vec3.rotation_rows(state.q_strapdown)
     accel = vec3.floats(accel_body_m_s2)
     f_inertial = vec3.mat_vec(to_inertial, accel)
@@ -179,7 +181,7 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     if converged:  # Q = q T / dt over the interval T
         sigma = math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau_s / max(interval_s, 1e-6)
     else:
-        sigma = raw_sigma if gnss_raw else params.sigma_rad
+        sigma = raw_sigma if gnss_raw else fast_sigma
     innovation = vec3.angle_rad(vec3.dot(vec3.mat_vec(rotation, down), world_unit))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, tick.dt_s)
     # nothing to gate against before the first tilt, nor in a fast start the GNSS acceleration called for

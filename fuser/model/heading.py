@@ -36,7 +36,7 @@ from core.observations import heading_exponent, vector_exponent
 from fuser.config import BiasSettings, MagSettings, UpdateSettings
 from fuser.model import vec3
 from fuser.model.diagnostics import UpdateDiagnostic
-from fuser.model.gate import innovation_gate
+from fuser.model.gate import fast_start_sigma_rad, innovation_gate
 from fuser.model.state import GravityState, HeadingState
 from fuser.model.tick import TickContext
 
@@ -65,11 +65,12 @@ class HeadingReading:
     diagnostic: UpdateDiagnostic
 
 
-def heading_sigma_rad(params: MagSettings, bias: BiasSettings, converged: bool, tick: TickContext, bias_variance_rad2_s2: float,
-                      interval_s: float) -> float:
+def heading_sigma_rad(params: MagSettings, bias: BiasSettings, updates: UpdateSettings, converged: bool, tick: TickContext,
+                      bias_variance_rad2_s2: float, interval_s: float) -> float:
     """Sigma of a heading reading taken ``interval_s`` after the previous one.
 
-    ``sigma_rad`` until converged (a fast start); then the magnetometer's
+    ``sigma_rad`` until converged (a fast start; per ``updates.fast_start_interval_s`` of readings,
+    :func:`fuser.model.gate.fast_start_sigma_rad`); then the magnetometer's
     correlated error counted once per correlation time,
     ``error sqrt(correlation_s / T)`` for readings every ``T`` (a fixed sigma
     counts errors that persist for seconds as independent and follows them),
@@ -79,7 +80,7 @@ def heading_sigma_rad(params: MagSettings, bias: BiasSettings, converged: bool, 
     poorly known bias is still held.
     """
     if not converged or interval_s <= 0.0:
-        return params.sigma_rad
+        return fast_start_sigma_rad(updates, params.sigma_rad, interval_s)
     correlated = math.radians(params.error_deg) * math.sqrt(max(params.correlation_s / interval_s, 1.0))
     tau = math.radians(params.heading_bias_error_deg) / math.sqrt(max(bias_variance_rad2_s2, bias.min_variance_rad2_s2))
     return min(correlated, math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau / interval_s)
