@@ -229,3 +229,26 @@ def test_gnss_of_another_vehicle_is_not_fused(raw_int):
     assert loop.counters["other_vehicle"] == sum(len(g) for _, _, g in raw_int)
     assert tilt < AIDED_TILT_DEG
     assert SIM_SOURCE.transport == "sim"  # the original flight's IMU is on another transport: that is why it is re-sourced here
+
+
+def test_a_vehicle_whose_gnss_stopped_in_flight_is_not_moving_for_ever():
+    """The last fix said 5 m/s; with no fix since, the vehicle counts as moving (rest detection off) while that fix
+    is fresh at the tick (``max_age_s`` plus the receiver's latency after it was measured), not for ever: after a
+    GNSS loss in flight and a landing the rest detector must run again. Before, a stream was compared with the
+    newest fix of the kept streams, its own, so it stayed moving."""
+    from core.bingham import Bingham
+    from fuser.model.state import GnssStream, GravityState, VelocityState
+    from fuser.model.velocity import track_velocity
+
+    cfg = FuserConfig()
+    measured = 10_000_000_000
+    state = VelocityState(streams=(GnssStream(("gps", False), measured, (5.0, 0.0, 0.0), True, 0.3),))
+    fresh_ns = round((cfg.gnss.max_age_s + cfg.gnss.latency_ms * 1e-3) * 1e9)
+
+    def moving_at(tick_ns: int) -> bool:
+        return track_velocity(cfg.gnss, cfg.accel, cfg.updates, state, [], GravityState(), None, tick_ns, 10_000_000,
+                              Bingham.uniform(), 90.0, 3.0, False, "saddlepoint").moving
+
+    assert moving_at(measured + fresh_ns)
+    assert not moving_at(measured + fresh_ns + 10_000_000)
+    assert not moving_at(measured + 60_000_000_000)

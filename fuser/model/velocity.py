@@ -317,9 +317,10 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
     if not active:
         body_lp = world_lp = None
     kept = tuple(streams[k] for k in sorted(streams, key=lambda k: (k[0], k[1]))) if fixes else state.streams
-    newest = max((s.measured_ns for s in kept), default=None)
-    moving = newest is not None and any(newest - s.measured_ns <= max_age_ns and math.hypot(*s.vel_ned_m_s) > params.moving_speed_m_s
-                                        for s in kept)
+    # moving: a fix still fresh at this tick (measured within max_age_s plus its latency) is fast; a stream that stopped
+    # in flight is not taken as moving for ever (the rest detector would never run again)
+    fresh_ns = max_age_ns + round(max(params.latency_ms, params.filtered_latency_ms) * 1e6)
+    moving = any(tick_ns - s.measured_ns <= fresh_ns and math.hypot(*s.vel_ned_m_s) > params.moving_speed_m_s for s in kept)
     after = VelocityState(kept, knots, body_lp, world_lp, vertical, noise_var, noise_cov, last, recent_world, recent_ns, recent_var, recent_cov)
     return VelocityTrack(after, active, fused and active, interval, moving, tuple(diagnostics), events)
 
