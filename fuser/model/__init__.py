@@ -19,7 +19,8 @@ innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
 :mod:`~fuser.model.extrapolation` (the published state carried ahead of its tick),
 :mod:`~fuser.model.state` (the persistent state), :mod:`~fuser.model.tick`
 (what goes in and out of a tick), :mod:`~fuser.model.diagnostics` (what each
-update did).
+update did), :mod:`~fuser.model.vec3` (the updates' 3-vector arithmetic in plain
+floats: numpy's per-call cost was most of their time).
 """
 
 from fuser.model.diagnostics import UpdateDiagnostic
