@@ -166,13 +166,7 @@ def propagate(params: BiasSettings, state: BiasState, dt_s: float) -> BiasState:
     scale = [min(1.0, limit / math.sqrt(covariance[i][i])) for i in range(3)]
     if scale != [1.0, 1.0, 1.0]:  # an axis past its initial value: scaled back to it, the correlations kept
         covariance = [[c * (si * sj) for c, sj in zip(row, scale)] for row, si in zip(covariance, scale)]
-    return _with_estimate(state, state.estimate_rad_s, np.array(covariance))
-
-
-def _with_estimate(state: BiasState, estimate_rad_s: np.ndarray, covariance_rad2_s2: np.ndarray) -> BiasState:
-    """``state`` with a new estimate and covariance, its stages kept (constructed directly: ``dataclasses.replace``
-    costs several microseconds a call, and this runs up to four times a tick)."""
-    return BiasState(estimate_rad_s, covariance_rad2_s2, state.rotation_lp, state.rotated_lp_rad_s, state.tilt_aided, state.tilt_settled_s)
+    return state.with_covariance(np.array(covariance))
 
 
 def _mean_variance(covariance: list[list[float]]) -> float:
@@ -262,7 +256,7 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
     # innovation variance per row, no matrix inverse, in plain floats (3-vectors: numpy's per-call cost would dominate).
     estimate = state.estimate_rad_s.tolist()
     covariance = state.covariance_rad2_s2.tolist()
-    floor = min(params.floor_sigma_rad_s**2, _mean_variance(covariance))
+    floor = min(params.floor_sigma_rad_s**2, state.variance_rad2_s2)
     for row, st, r, c in zip(rows, stage, noise, correction):
         h = state.rotation_lp[st, row].tolist()
         y = float(state.rotated_lp_rad_s[st, row]) - c
@@ -275,7 +269,7 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
     mean = _mean_variance(learnt)
     if mean < floor:  # no surer than the floor (or than it was) from motion alone
         learnt = [[x * (floor / mean) for x in row_l] for row_l in learnt]
-    return _with_estimate(state, _clipped(estimate, params.max_abs_rad_s), np.array(learnt))
+    return state.with_estimate(_clipped(estimate, params.max_abs_rad_s), np.array(learnt))
 
 
 def may_learn(params: BiasSettings, at_rest: bool, prior_doubt_deg: float) -> bool:
@@ -356,6 +350,6 @@ def integral_feedback(params: BiasSettings, state: BiasState, predicted_q: np.nd
     estimate = _clipped([b - c / tau for b, c in zip(state.estimate_rad_s.tolist(), correction)], params.max_abs_rad_s)
     decay = min(1.0, dt_s / tau)
     covariance = state.covariance_rad2_s2
-    variance = _mean_variance(covariance.tolist())
+    variance = state.variance_rad2_s2
     learnt = variance - decay * max(0.0, variance - params.floor_sigma_rad_s**2)
-    return _with_estimate(state, estimate, covariance * (learnt / variance if variance > 0.0 else 1.0))
+    return state.with_estimate(estimate, covariance * (learnt / variance if variance > 0.0 else 1.0))

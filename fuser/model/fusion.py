@@ -173,7 +173,7 @@ class FusionModel:
         accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags, body_rate) if imu else None
         tau = tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2)
         velocity = track_velocity(cfg.gnss, cfg.accel, cfg.updates, s.velocity, gnss, gravity, accel, tick.t_ns, tick.dt_ns,
-                                  prediction.attitude, context.prior_doubt_deg, tau, unknown_rotation_s > 0.0, self.method)
+                                  predicted_q, context.prior_doubt_deg, context.prior_tilt_doubt_deg, tau, unknown_rotation_s > 0.0)
         diagnostics += velocity.diagnostics
         events += velocity.events
         if accel is not None:

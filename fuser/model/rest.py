@@ -11,18 +11,14 @@ readings are correlated, not independent).
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
 from fuser.config import RestSettings
+from fuser.model import vec3
 from fuser.model.state import BiasState, RestState
 
 __all__ = ["detect_rest", "measure_bias"]
-
-
-def _norm(x: float, y: float, z: float) -> float:
-    return math.sqrt(x * x + y * y + z * z)
 
 
 def detect_rest(params: RestSettings, state: RestState, raw_rate_rad_s: np.ndarray, accel_m_s2: np.ndarray, dt_s: float) -> RestState:
@@ -36,9 +32,9 @@ def detect_rest(params: RestSettings, state: RestState, raw_rate_rad_s: np.ndarr
     gyro_lp = [lp + a * (x - lp) for lp, x in zip(gyro_lp, gyro)]
     accel_lp = [lp + a * (x - lp) for lp, x in zip(accel_lp, accel)]
     still = (
-        _norm(*(x - lp for x, lp in zip(gyro, gyro_lp))) < params.gyro_rad_s
-        and _norm(*gyro_lp) < params.gyro_rad_s
-        and _norm(*(x - lp for x, lp in zip(accel, accel_lp))) < params.accel_m_s2
+        vec3.norm([x - lp for x, lp in zip(gyro, gyro_lp)]) < params.gyro_rad_s
+        and vec3.norm(gyro_lp) < params.gyro_rad_s
+        and vec3.norm([x - lp for x, lp in zip(accel, accel_lp)]) < params.accel_m_s2
     )
     still_s = state.still_s + dt_s if still else 0.0
     return RestState(np.array(gyro_lp), np.array(accel_lp), still_s, still_s >= params.min_s)
@@ -63,8 +59,7 @@ def measure_bias(params: RestSettings, rest: RestState, bias: BiasState, dt_s: f
         kept[i][i] += 1.0
     covariance = _product(kept, covariance)
     symmetric = [[0.5 * (covariance[i][j] + covariance[j][i]) for j in range(3)] for i in range(3)]
-    return BiasState(np.array(estimate), np.array(symmetric), bias.rotation_lp, bias.rotated_lp_rad_s, bias.tilt_aided,
-                     bias.tilt_settled_s)
+    return bias.with_estimate(np.array(estimate), np.array(symmetric))
 
 
 def _product(a: list[list[float]], b: list[list[float]]) -> list[list[float]]:

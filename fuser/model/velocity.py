@@ -219,16 +219,18 @@ def _selected(streams: Sequence[GnssStream], now_measured_ns: int, max_age_ns: i
 
 def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates: UpdateSettings, state: VelocityState,
                    fixes: Sequence[tuple[GnssSample, int]], gravity: GravityState, accel_body_m_s2: np.ndarray | None, tick_ns: int,
-                   dt_ns: int, predicted: Bingham, prior_doubt_deg: float, tau_s: float, frame_broken: bool, method: Method) -> VelocityTrack:
+                   dt_ns: int, predicted_q: np.ndarray, prior_doubt_deg: float, prior_tilt_doubt_deg: float, tau_s: float,
+                   frame_broken: bool) -> VelocityTrack:
     """The tick's GNSS fixes (each with its placed time) differenced into pairs against the accelerometer's
     history and low-passed (module docstring); ``accel_body_m_s2`` is the tick's mean specific force in the
     state's body frame (None without an IMU sample), ``gravity`` the strapdown frame after this tick's rotation,
-    ``predicted`` the predicted attitude. The aiding starts once a tilt has been measured and the predicted tilt
+    ``predicted_q`` the predicted attitude's mode, ``prior_doubt_deg`` and ``prior_tilt_doubt_deg`` its doubts
+    (:class:`~fuser.model.tick.TickContext`). The aiding starts once a tilt has been measured and the predicted tilt
     is known within ``updates.converged_deg`` (before that the plain update's fast start runs), whatever the
     heading's uncertainty (6-D fusion too)."""
     if not params.enabled or not (fixes or state.streams):
         return VelocityTrack(state, False, False, 0.0, False, (), ())
-    may_aid = gravity.tilt_known and not frame_broken and tilt_doubt_deg(predicted, method) < updates.converged_deg
+    may_aid = gravity.tilt_known and not frame_broken and prior_tilt_doubt_deg < updates.converged_deg
     to_s = vec3.rotation_rows(gravity.q_strapdown)  # body -> S
     force_s = None if accel_body_m_s2 is None else vec3.mat_vec(to_s, vec3.floats(accel_body_m_s2))
     knots = _knots(params, state, force_s, tick_ns, dt_ns, frame_broken)
@@ -281,7 +283,7 @@ def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates:
         force = ((end[0] - start[0]) / span_s, (end[1] - start[1]) / span_s, (end[2] - start[2]) / span_s)  # mean over the interval, in S
         # the jump check: against the accelerometer's acceleration, rotated by the estimate (S -> NED), only when a pair comes
         if to_world is None:
-            to_world = vec3.rotation_rows(predicted.mode)
+            to_world = vec3.rotation_rows(predicted_q)
         expected = vec3.mat_vec(to_world, vec3.vec_mat(force, to_s))
         difference = (accel[0] - expected[0], accel[1] - expected[1], accel[2] - (expected[2] + g) if both_vertical else 0.0)
         variance = (2.0 * (max(noise_m_s, previous.noise_m_s) / span_s) ** 2 + (vec3.norm(force) * math.radians(prior_doubt_deg)) ** 2
