@@ -90,12 +90,15 @@ def grid_scores(trials: list[TrialStates]) -> tuple[list[tuple[float, float, flo
 
 def best(cov: np.ndarray, ll: np.ndarray, fit_on: np.ndarray, within: float | None) -> int:
     """Index of the set with the highest mean log-likelihood on ``fit_on`` trials (optionally with every
-    mean coverage within ``within`` points of nominal there)."""
+    mean coverage within ``within`` points of nominal there; if no set is, the one whose largest deviation from
+    nominal is smallest: the best calibrated, not the grid's first)."""
     objective = ll[:, fit_on].mean(axis=1)
-    if within is not None:
-        deviation = np.abs(cov[:, fit_on].mean(axis=1) - 100.0 * LEVELS).max(axis=1)
-        objective = np.where(deviation <= within, objective, -np.inf)
-    return int(np.argmax(objective))
+    if within is None:
+        return int(np.argmax(objective))
+    deviation = np.abs(cov[:, fit_on].mean(axis=1) - 100.0 * LEVELS).max(axis=1)
+    if not np.any(deviation <= within):
+        return int(np.argmin(deviation))
+    return int(np.argmax(np.where(deviation <= within, objective, -np.inf)))
 
 
 def describe(label: str, p: tuple[float, float, float], cov: np.ndarray, ll: np.ndarray) -> str:
