@@ -17,7 +17,12 @@ about 1.3 deg with a magnetometer, and the magnetometer's norm and dip
 deviations from the reference do not predict the heading error (their
 offsets are dominated by the sensor's own calibration; a disturbance that
 keeps norm and dip, as on the phone-vibration trial, is invisible to them),
-so they are not used.
+so they are not used. Since the published state also carries the tilt the
+corrections absorbed from the accelerometer (:func:`fuser.model.unaided.absorbed`:
+in fast motion the hand's accelerations are most of that rate-proportional
+error), the fit sets the tilt floor and the rate term to zero and the heading
+floor to 2.5 deg (``fuser.config.ModelErrorSettings``); both terms stay for
+sensors that need them.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ from fuser.model.attitude import update_attitude
 from fuser.model.gravity import turn_frame, update_gravity
 from fuser.model.state import AttitudeState, GravityState, UnaidedState, VelocityState
 from fuser.model.tick import TickContext
-from fuser.model.unaided import cleared, corrected, followed, learn_norm
+from fuser.model.unaided import absorbed, cleared, corrected, followed, learn_norm
 from fuser.model.velocity import VelocityTrack, update_gravity_aided
 
 G = AccelSettings().gravity_m_s2
@@ -27,7 +27,7 @@ GRAVITY = GravityState(q_strapdown=quat.from_axis_angle([0.0, 0.0, 1.0], 0.3), a
                        down_body=np.array([0.0, 0.6, 0.8]), converged=True, tilt_known=True, gated_s=0.25,
                        raw_mean_m_s2=np.array([0.2, 0.1, -G]), raw_s=0.5, measured_body=np.array([0.0, 0.8, 0.6]), gnss_checked=True,
                        measured_world=np.array([0.6, 0.0, 0.8]))
-UNAIDED = UnaidedState(excess_m2_s4=3.0, norm_mean_m_s2=np.array([0.0, 0.0, -1.01 * G]), norm_mean_s=20.0)
+UNAIDED = UnaidedState(excess_m2_s4=3.0, norm_mean_m_s2=np.array([0.0, 0.0, -1.01 * G]), norm_mean_s=20.0, absorbed_rad=(0.02, -0.01))
 
 
 def _same(a, b, names):
@@ -43,7 +43,7 @@ def _names(cls):
 def test_the_field_sets_these_constructions_carry():
     assert _names(GravityState) == ["q_strapdown", "accel_lp_m_s2", "down_body", "converged", "tilt_known", "gated_s", "raw_mean_m_s2",
                                     "raw_s", "measured_body", "gnss_checked", "measured_world"]
-    assert _names(UnaidedState) == ["excess_m2_s4", "norm_mean_m_s2", "norm_mean_s"]
+    assert _names(UnaidedState) == ["excess_m2_s4", "norm_mean_m_s2", "norm_mean_s", "absorbed_rad"]
     assert _names(AttitudeState) == ["gated_s", "last_fused_ns"]
     for cls, state in ((GravityState, GRAVITY), (UnaidedState, UNAIDED)):  # every field off its default
         default = cls()
@@ -80,13 +80,16 @@ def test_the_aided_update_keeps_what_it_does_not_measure(fused):
 
 def test_the_unaided_steps_keep_the_learnt_norm():
     params = AccelSettings()
-    _same(followed(params, UNAIDED, 4.0, 0.01, 3.0), UNAIDED, ["norm_mean_m_s2", "norm_mean_s"])
+    _same(followed(params, UNAIDED, 4.0, 0.01, 3.0), UNAIDED, ["norm_mean_m_s2", "norm_mean_s", "absorbed_rad"])
     _same(cleared(params, UNAIDED), UNAIDED, ["norm_mean_m_s2", "norm_mean_s"])
+    assert cleared(params, UNAIDED).absorbed_rad == (0.0, 0.0)
     _same(corrected(params, UNAIDED, 10.0, 5.0, math.pi), UNAIDED, ["norm_mean_m_s2", "norm_mean_s"])
+    _same(absorbed(params, UNAIDED, 0.01, 3.0, None), UNAIDED, ["excess_m2_s4", "norm_mean_m_s2", "norm_mean_s"])
     learnt = learn_norm(params, UNAIDED, GRAVITY, np.array([0.0, 0.0, -G]), 0.01, False)
     assert learnt.excess_m2_s4 == UNAIDED.excess_m2_s4 and learnt.norm_mean_s == pytest.approx(20.01)
+    assert learnt.absorbed_rad == UNAIDED.absorbed_rad
     broken = learn_norm(params, UNAIDED, GRAVITY, np.array([0.0, 0.0, -G]), 0.01, True)
-    _same(broken, UNAIDED, ["excess_m2_s4", "norm_mean_s"])
+    _same(broken, UNAIDED, ["excess_m2_s4", "norm_mean_s", "absorbed_rad"])
     # the mean kept along the last measured down, its norm the learnt one: -|mean| (0, 0.6, 0.8) turned into S
     expected = quat.to_matrix(GRAVITY.q_strapdown) @ (-1.01 * G * np.array([0.0, 0.6, 0.8]))
     np.testing.assert_allclose(broken.norm_mean_m_s2, expected, rtol=1e-12)

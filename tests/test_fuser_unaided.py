@@ -18,7 +18,7 @@ from fuser.config import AccelSettings, UpdateSettings
 from fuser.model.gravity import turn_frame, update_gravity
 from fuser.model.state import GravityState, UnaidedState
 from fuser.model.tick import TickContext
-from fuser.model.unaided import cleared, corrected, excess_norm_sq_m2_s4, followed, learn_norm, unaided_target, unseen_variances_rad2
+from fuser.model.unaided import absorbed, cleared, corrected, excess_norm_sq_m2_s4, followed, learn_norm, unaided_target, unseen_variances_rad2
 
 G = 9.80665
 
@@ -210,3 +210,71 @@ def test_a_norm_learnt_in_a_turn_does_not_hide_it():
     expected = math.degrees(math.atan(math.sqrt(4 / 3 - 1.0609)))
     assert math.degrees(math.sqrt(unseen_variances_rad2(params, in_turn, None)[0])) == pytest.approx(expected, abs=1e-9)
     assert unseen_variances_rad2(params, cleared(params, in_turn), None) == (0.0, 0.0)
+
+
+def _about(axis, angle_rad: float) -> np.ndarray:
+    return quat.from_axis_angle(np.asarray(axis, dtype=float), angle_rad)
+
+
+def test_the_absorbed_corrections_sum_to_the_error_a_false_vertical_left():
+    """A first-order tilt correction (time constant tau) following a down that is 5 deg off for 2 s (a multirotor's
+    acceleration) and then right again, with an exact gyro: the estimate's error is the sum of its corrections
+    (x' = (a - x) / tau, so x(t) = integral of the corrections). With a memory far longer than the flight the
+    absorbed tilt is that error at every tick; with the default memory (2 tau) it is the error high-passed,
+    ``x - LP_{2 tau}(x)``, computed here in closed form beside it."""
+    tau, dt = 3.0, 0.01
+    long_memory = AccelSettings(unaided_memory_time_constants=1e9)
+    default = AccelSettings()
+    state_long = state_default = UnaidedState()
+    x, low = 0.0, 0.0  # the error (rad, about north) and its low-pass over the default memory
+    for k in range(800):
+        false_vertical = math.radians(5.0) if k < 200 else 0.0
+        x_next = x + (false_vertical - x) * dt / tau
+        correction = (_about([1, 0, 0], x), _about([1, 0, 0], x_next))
+        state_long = absorbed(long_memory, state_long, dt, tau, correction)
+        state_default = absorbed(default, state_default, dt, tau, correction)
+        low = low + (x_next - low) * dt / (default.unaided_memory_time_constants * tau)
+        x = x_next
+        assert state_long.absorbed_rad[0] == pytest.approx(x, abs=1e-9) and state_long.absorbed_rad[1] == pytest.approx(0.0, abs=1e-12)
+        assert state_default.absorbed_rad[0] == pytest.approx(x - low, abs=2e-4)
+    # the error outlives the false vertical by far (its closed form: 5 (1 - e^(-2/3)) e^(-6/3) deg), and so does its account
+    assert math.degrees(x) == pytest.approx(5.0 * (1.0 - math.exp(-2.0 / 3.0)) * math.exp(-2.0), rel=1e-2)
+
+
+def test_the_memory_leaks_a_steady_correction_to_its_closed_form():
+    """A steady correction ``c`` per tick (a residual bias ``b``, ``c = b dt``) sums to the geometric series'
+    limit ``c / (1 - keep)``, ``keep = 1 - dt / (K tau)``: ``b K tau``, the bias times the memory. A correction
+    about east lands east, with its sign; one about down (a heading correction) adds nothing."""
+    params, tau, dt, b = AccelSettings(), 3.0, 0.01, math.radians(0.5)
+    state = UnaidedState()
+    for _ in range(20000):
+        state = absorbed(params, state, dt, tau, (_about([0, 1, 0], 0.3), _about([0, 1, 0], 0.3 - b * dt)))
+        state = absorbed(params, state, 0.0, tau, (_about([0, 0, 1], 1.0), _about([0, 0, 1], 1.2)))
+    assert state.absorbed_rad[1] == pytest.approx(-b * params.unaided_memory_time_constants * tau, rel=1e-6)
+    assert state.absorbed_rad[0] == pytest.approx(0.0, abs=1e-12)
+    assert absorbed(params, state, dt, tau, None).absorbed_rad[1] == pytest.approx(state.absorbed_rad[1] * (1 - dt / (2 * tau)))
+
+
+def test_the_published_tilt_is_the_larger_account_and_the_heading_follows_it():
+    params, field = AccelSettings(unaided_norm_tolerance_fraction=0.0), (0.2, 0.0, 0.4)  # tan I = 2
+    turn = _u(excess_norm_sq_m2_s4(params, _turn_specific_force(10.0)))
+    small, large = math.radians(3.0), math.radians(20.0)
+    for north, east in ((small, 0.0), (0.0, large)):
+        state = dataclasses.replace(turn, absorbed_rad=(north, east))
+        tilt, heading = unseen_variances_rad2(params, state, field)
+        expected = max(math.radians(10.0), math.hypot(north, east))
+        assert math.sqrt(tilt) == pytest.approx(expected, rel=1e-9)
+        assert heading == pytest.approx(0.5 * expected**2 * 4.0, rel=1e-9)
+
+
+def test_aided_readings_shrink_the_absorbed_tilt_by_their_gain_and_bound():
+    params = AccelSettings()
+    state = UnaidedState(absorbed_rad=(math.radians(6.0), math.radians(8.0)))  # 10 deg
+    prior_deg, sigma_deg = 2.0, 1.0
+    prior = 0.5 * math.radians(prior_deg) ** 2
+    keep = 1.0 - prior / (prior + math.radians(sigma_deg) ** 2)  # the product's gain (QBF paper, sec. 5)
+    shrunk = corrected(params, state, prior_deg, sigma_deg, math.pi)
+    assert shrunk.absorbed_rad == pytest.approx((keep * math.radians(6.0), keep * math.radians(8.0)), rel=1e-12)
+    bounded = corrected(params, state, prior_deg, sigma_deg, math.radians(1.0))
+    assert math.hypot(*bounded.absorbed_rad) == pytest.approx(math.radians(1.0), rel=1e-12)
+    assert cleared(params, state).absorbed_rad == (0.0, 0.0)

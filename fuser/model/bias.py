@@ -64,9 +64,10 @@ averaged over ``tau_2``), correlated over ``max(tau_2, tau_c)``, so counted
 once per that (consecutive corrections share it). For the plain tilt
 ``tau_c = tau`` and ``n^2`` is ``motion_tilt_noise_deg`` squared (the linear
 acceleration the low-pass leaves) plus the tilt the unaided accelerometer's
-norm reveals it cannot see (:func:`fuser.model.unaided.unseen_variances_rad2`:
-in a sustained coordinated turn the false vertical stays put in the body and
-its correction looks exactly like a bias).
+norm reveals it cannot see, or the tilt its corrections have absorbed, whichever
+is larger (:func:`fuser.model.unaided.unseen_variances_rad2`: in a sustained
+coordinated turn the false vertical stays put in the body and its correction
+looks exactly like a bias; a turn's entry, before the norm shows it, too).
 
 **While GNSS aids the tilt** (:mod:`fuser.model.velocity`) the Kalman
 filter does not learn: the aided correction has the same two stages on paper

@@ -59,7 +59,7 @@ from fuser.model.propagation import integrate_gyro, predict
 from fuser.model.rest import detect_rest, measure_bias
 from fuser.model.state import FilterState, GyroState, HeadingState, RestState, initial_state
 from fuser.model.tick import TickContext, TickInput, TickResult
-from fuser.model.unaided import cleared, corrected, followed, learn_norm, unaided_target, unseen_variances_rad2
+from fuser.model.unaided import absorbed, cleared, corrected, followed, learn_norm, unaided_target, unseen_variances_rad2
 from fuser.model.velocity import raw_world, tilt_doubt_deg, track_velocity, update_gravity_aided
 
 __all__ = ["FusionModel"]
@@ -228,10 +228,14 @@ class FusionModel:
                 attitude_source = dataclasses.replace(attitude_source, last_fused_ns=tick.t_ns)
         elif attitudes:
             events += ["attitude_unused"] * len(attitudes)
+        posterior = _multiplied(belief, exponent)
+        # the tilt the plain update's corrections took from the accelerometer, which a false vertical would have put there
+        plain = (reading is not None and reading.exponent is not None and not velocity.active and not reading.restart
+                 and s.gravity.converged and not (attitudes and attitude_fused))
+        unaided = absorbed(cfg.accel, unaided, dt, tau, (predicted_q, posterior.mode) if plain else None)
         if attitude_source.last_fused_ns is not None and tick.t_ns - attitude_source.last_fused_ns <= cfg.accel.lowpass_s * 1e9:
             # the autopilot's down, fused within the tilt time constant: what the accelerometer could not see is its estimator's
             unaided = cleared(cfg.accel, unaided)
-        posterior = _multiplied(belief, exponent)
 
         # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
         if imu:

@@ -148,6 +148,9 @@ class UnaidedState:
     and bias included (None: none yet, or the frame broke)."""
     norm_mean_s: float = 0.0
     """Seconds of readings in that mean."""
+    absorbed_rad: tuple[float, float] = (0.0, 0.0)
+    """North and east (world frame) of the tilt the plain gravity update's corrections have moved the estimate by,
+    summed with a leak: what a false vertical may have put into it (:func:`fuser.model.unaided.absorbed`)."""
 
 
 @dataclass(frozen=True, slots=True)
