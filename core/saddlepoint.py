@@ -134,34 +134,54 @@ def log_c3(z: np.ndarray, mult: np.ndarray) -> float:
 
 
 @njit(cache=True, nogil=True)
-def derivatives(z: np.ndarray, order: int) -> tuple:
-    """``log N``, ``g_i = (dN/dz_i)/N`` and, if ``order == 2``, ``H_ij = (d2N/dz_i dz_j)/N``.
-
-    Each derivative is a scaled normalizer of a raised dimension (saddlepoint
-    paper, Corollary 2 and eq. 4).
-    """
+def _gradient(z: np.ndarray) -> tuple:
+    """``log N`` and ``g_i = (dN/dz_i)/N``: each derivative a scaled normalizer of a raised dimension
+    (saddlepoint paper, Corollary 2 and eq. 4)."""
     n = z.shape[0]
-    ones = np.ones(n)
-    log_n = log_c3(z, ones)
+    mult = np.ones(n)
+    log_n = log_c3(z, mult)
     grad = np.empty(n)
-    hess = np.zeros((n, n))
-    mult = ones.copy()
     for i in range(n):
         mult[i] += 2.0
         grad[i] = math.exp(_LOG_A1 + log_c3(z, mult) - log_n)
-        if order == 2:
-            for j in range(i, n):
-                if j == i:
-                    mult[i] += 2.0
-                    hess[i, i] = math.exp(_LOG_A2 + log_c3(z, mult) - log_n)
-                    mult[i] -= 2.0
-                else:
-                    mult[j] += 2.0
-                    v = math.exp(_LOG_A11 + log_c3(z, mult) - log_n)
-                    mult[j] -= 2.0
-                    hess[i, j] = v
-                    hess[j, i] = v
         mult[i] -= 2.0
+    return log_n, grad
+
+
+@njit(cache=True, nogil=True)
+def _hessian(z: np.ndarray, log_n: float) -> np.ndarray:
+    """``H_ij = (d2N/dz_i dz_j)/N`` for ``log_n = log N(z)`` (eq. 4, ``|k| = 2``)."""
+    n = z.shape[0]
+    hess = np.zeros((n, n))
+    mult = np.ones(n)
+    for i in range(n):
+        mult[i] += 2.0
+        for j in range(i, n):
+            if j == i:
+                mult[i] += 2.0
+                hess[i, i] = math.exp(_LOG_A2 + log_c3(z, mult) - log_n)
+                mult[i] -= 2.0
+            else:
+                mult[j] += 2.0
+                v = math.exp(_LOG_A11 + log_c3(z, mult) - log_n)
+                mult[j] -= 2.0
+                hess[i, j] = v
+                hess[j, i] = v
+        mult[i] -= 2.0
+    return hess
+
+
+@njit(cache=True, nogil=True)
+def derivatives(z: np.ndarray, order: int) -> tuple:
+    """``log N``, ``g_i = (dN/dz_i)/N`` and, if ``order == 2``, ``H_ij = (d2N/dz_i dz_j)/N`` (zeros otherwise).
+
+    Each derivative is a scaled normalizer of a raised dimension (saddlepoint
+    paper, Corollary 2 and eq. 4). The per-tick kernels call :func:`_gradient`
+    and :func:`_hessian` themselves: an ``order`` that is a constant in one
+    caller and a variable in another would compile this twice.
+    """
+    log_n, grad = _gradient(z)
+    hess = _hessian(z, log_n) if order == 2 else np.zeros((z.shape[0], z.shape[0]))
     return log_n, grad, hess
 
 
@@ -174,7 +194,7 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
     ``d log m_i / dz_j = (H_ij - g_i g_j) / g_i - sum_k (H_kj - g_k g_j) / G``.
     """
     n = z.shape[0]
-    _, g, h = derivatives(z, 2 if with_jacobian else 1)
+    log_n, g = _gradient(z)
     total = 0.0
     for i in range(n):
         total += g[i]
@@ -184,6 +204,7 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
         res[i] = math.log(m[i]) - log_target[i]
     jac = np.empty((n - 1, n - 1))
     if with_jacobian:
+        h = _hessian(z, log_n)
         for j in range(n - 1):
             col = 0.0
             for k in range(n):
@@ -260,7 +281,9 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
     """
     n = z0.shape[0]
     z = z0.copy()
-    res, m, jac = _log_moment_residual(z, log_target, True)
+    # the Jacobian if a step may follow: a flag computed, not the constant True, so that this call and the
+    # loop's share one compiled specialization (a literal argument compiles one of its own)
+    res, m, jac = _log_moment_residual(z, log_target, max_iter > 0)
     cost = _sum_squares(res)
     trial = z.copy()
     for _ in range(max_iter):
@@ -277,7 +300,8 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
             if cost_new <= cost or scale < 1e-4:
                 break
             scale *= 0.5
-        z[:] = trial
+        for i in range(n):  # a loop: ``z[:] = trial`` compiles a shape check whose message formatting costs 2.4 s
+            z[i] = trial[i]
         res = res_new
         m = m_new
         cost = cost_new
@@ -289,7 +313,7 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
 @njit(cache=True, nogil=True)
 def moments(z: np.ndarray) -> np.ndarray:
     """``E[x_i^2] = (dN/dz_i) / sum_k dN/dz_k`` (:func:`core.normalization.moments`), in one call."""
-    grad = derivatives(z.copy(), 1)[1]  # a writable copy: the chain below compiles once, for the fit's arrays too
+    grad = _gradient(z.copy())[1]  # a writable copy: the chain below compiles once, for the fit's arrays too
     total = 0.0
     for g in grad:
         total += g
