@@ -29,6 +29,13 @@ from core.bingham import Bingham
 __all__ = ["heading_exponent", "heading_likelihood", "vector_exponent", "vector_likelihood"]
 
 
+def _kernel_array(v: ArrayLike) -> np.ndarray:
+    """``v`` as the one array type the kernels are compiled for: C-contiguous float64 and writable (numba types a
+    read-only array, such as a module's constant, apart, and would compile a kernel a second time for it)."""
+    arr = np.ascontiguousarray(v, dtype=np.float64)
+    return arr if arr.flags.writeable else arr.copy()
+
+
 def _check_sigma(sigma: float) -> None:
     if not sigma > 0:
         raise ValueError("sigma must be positive")
@@ -43,7 +50,7 @@ def vector_exponent(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> np.n
     gravity reading's per-tick cost.
     """
     _check_sigma(sigma)
-    b, r = np.ascontiguousarray(b_body, dtype=np.float64), np.ascontiguousarray(r_world, dtype=np.float64)
+    b, r = _kernel_array(b_body), _kernel_array(r_world)
     k = _davenport(b, r, float(sigma)) if b.shape == r.shape == (3,) else None
     if k is None:
         raise ValueError("direction vectors must be finite and non-zero")
@@ -99,7 +106,7 @@ def heading_exponent(q_ref: ArrayLike, heading_error_rad: float, sigma: float) -
     -Rz(error) k q_ref``, which is computed directly.
     """
     _check_sigma(sigma)
-    return _heading_exponent(np.ascontiguousarray(quat.as_quaternion(q_ref)), float(heading_error_rad), float(sigma))
+    return _heading_exponent(_kernel_array(quat.as_quaternion(q_ref)), float(heading_error_rad), float(sigma))
 
 
 @njit(cache=True, nogil=True)
