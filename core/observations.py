@@ -114,7 +114,11 @@ def _heading_exponent(q: np.ndarray, heading_error_rad: float, sigma: float) -> 
     """:func:`heading_exponent`, compiled: ``v = (sin(e/2), 0, 0, -cos(e/2)) (x) q_ref``, ``-(2/sigma^2) v v^T``."""
     half = 0.5 * heading_error_rad
     s, c = math.sin(half), -math.cos(half)
-    v = np.array([s * q[0] - c * q[3], s * q[1] - c * q[2], s * q[2] + c * q[1], s * q[3] + c * q[0]])
+    v = np.empty(4)  # not np.array([...]): one array constructor fewer to compile
+    v[0] = s * q[0] - c * q[3]
+    v[1] = s * q[1] - c * q[2]
+    v[2] = s * q[2] + c * q[1]
+    v[3] = s * q[3] + c * q[0]
     kappa = -2.0 / (sigma * sigma)
     out = np.empty((4, 4))
     for i in range(4):

@@ -55,7 +55,7 @@ _LOG_A11 = -2.0 * LOG_2PI  # k_i = k_j = 1: 1/(4 pi^2)
 _LOG_A2 = math.log(0.75) - 2.0 * _LOG_PI  # k_i = 2: Gamma(5/2)/(pi^2 Gamma(1/2)) = 3/(4 pi^2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _solve_u(delta: np.ndarray, mult: np.ndarray) -> float:
     """Root ``u`` of ``sum_i m_i / (2 (delta_i + u)) = 1``, i.e. ``K'(t) = 1``.
 
@@ -133,12 +133,21 @@ def log_c3(z: np.ndarray, mult: np.ndarray) -> float:
     )
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
+def _ones(n: int) -> np.ndarray:
+    """``np.ones(n)``, as a fill of ``np.empty``: the only array constructor the kernels compile."""
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = 1.0
+    return out
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _gradient(z: np.ndarray) -> tuple:
     """``log N`` and ``g_i = (dN/dz_i)/N``: each derivative a scaled normalizer of a raised dimension
     (saddlepoint paper, Corollary 2 and eq. 4)."""
     n = z.shape[0]
-    mult = np.ones(n)
+    mult = _ones(n)
     log_n = log_c3(z, mult)
     grad = np.empty(n)
     for i in range(n):
@@ -148,12 +157,12 @@ def _gradient(z: np.ndarray) -> tuple:
     return log_n, grad
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _hessian(z: np.ndarray, log_n: float) -> np.ndarray:
     """``H_ij = (d2N/dz_i dz_j)/N`` for ``log_n = log N(z)`` (eq. 4, ``|k| = 2``)."""
     n = z.shape[0]
-    hess = np.zeros((n, n))
-    mult = np.ones(n)
+    hess = np.empty((n, n))  # every entry is written
+    mult = _ones(n)
     for i in range(n):
         mult[i] += 2.0
         for j in range(i, n):
@@ -198,7 +207,9 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
     total = 0.0
     for i in range(n):
         total += g[i]
-    m = g / total
+    m = np.empty(n)
+    for i in range(n):
+        m[i] = g[i] / total
     res = np.empty(n - 1)
     for i in range(n - 1):
         res[i] = math.log(m[i]) - log_target[i]
@@ -214,7 +225,7 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
     return res, m, jac
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _sum_squares(v: np.ndarray) -> float:
     s = 0.0
     for x in v:
@@ -222,7 +233,7 @@ def _sum_squares(v: np.ndarray) -> float:
     return s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
     """``-(J^T J + mu I)^-1 J^T r`` by Cholesky; ``mu`` is 1e-12 of the trace.
 
@@ -231,14 +242,18 @@ def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
     unknowns and LAPACK's numba bindings cost seconds of compilation.
     """
     k = res.shape[0]
-    a = np.zeros((k, k))
-    b = np.zeros(k)
+    a = np.empty((k, k))
+    b = np.empty(k)
     for i in range(k):
         for j in range(k):
+            s = 0.0
             for r in range(k):
-                a[i, j] += jac[r, i] * jac[r, j]
+                s += jac[r, i] * jac[r, j]
+            a[i, j] = s
+        s = 0.0
         for r in range(k):
-            b[i] -= jac[r, i] * res[r]
+            s -= jac[r, i] * res[r]
+        b[i] = s
     trace = 0.0
     for i in range(k):
         trace += a[i, i]
@@ -267,7 +282,7 @@ def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
     return b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter: int) -> tuple:
     """Gauss-Newton for ``log m(z) = log target`` with ``z_n = 0`` fixed (saddlepoint paper, sec. III-B).
 
@@ -322,16 +337,15 @@ def moments(z: np.ndarray) -> np.ndarray:
     return grad
 
 
-@njit(cache=True, nogil=True)
-def _stable_order(v: np.ndarray) -> np.ndarray:
-    """Indices sorting ``v`` ascending, equal entries in their order (insertion sort: ``v`` has a few entries)."""
-    order = np.arange(v.shape[0])
-    for i in range(1, v.shape[0]):
+@njit(cache=True, nogil=True, inline="always")
+def _sort_alongside(keys: np.ndarray, values: np.ndarray) -> None:
+    """Sort ``keys`` ascending in place, equal keys in their order, and ``values`` alike (insertion sort: a few entries)."""
+    for i in range(1, keys.shape[0]):
         j = i
-        while j > 0 and v[order[j - 1]] > v[order[j]]:
-            order[j - 1], order[j] = order[j], order[j - 1]
+        while j > 0 and keys[j - 1] > keys[j]:
+            keys[j - 1], keys[j] = keys[j], keys[j - 1]
+            values[j - 1], values[j] = values[j], values[j - 1]
             j -= 1
-    return order
 
 
 @njit(cache=True, nogil=True)
@@ -357,10 +371,5 @@ def fit_moments(target: np.ndarray, start: np.ndarray, min_moment: float, tol: f
     for i in range(n):
         z0[i] = 0.5 / t[n - 1] - 0.5 / t[i] if start.shape[0] == 0 else start[i]
     z, m = fit_log_moments(z0, log_t, tol, max_iter)
-    order = _stable_order(z)
-    z_sorted = np.empty(n)
-    m_sorted = np.empty(n)
-    for i in range(n):
-        z_sorted[i] = z[order[i]]
-        m_sorted[i] = m[order[i]]
-    return z_sorted, m_sorted
+    _sort_alongside(z, m)
+    return z, m
