@@ -106,7 +106,7 @@ def heading_exponent(q_ref: ArrayLike, heading_error_rad: float, sigma: float) -
     -Rz(error) k q_ref``, which is computed directly.
     """
     _check_sigma(sigma)
-    return _heading_exponent(_kernel_array(quat.as_quaternion(q_ref)), float(heading_error_rad), float(sigma))
+    return _heading_exponent(np.ascontiguousarray(quat.as_quaternion(q_ref)), float(heading_error_rad), float(sigma))
 
 
 @njit(cache=True, nogil=True)
