@@ -3,14 +3,17 @@
     python benchmarks/bench_tick.py               # table: us per tick by step, per log; compile cost cold and warm
     python benchmarks/bench_tick.py --runs 7      # median of 7 runs (default 5)
     python benchmarks/bench_tick.py --skip-compile
-    python benchmarks/bench_tick.py --baseline main   # compile cost of REF's kernels too, in the same run
+    python benchmarks/bench_tick.py --baseline main   # REF's code too, in the same run: per tick and compile cost
 
 Each log is replayed once through the loop (:class:`fuser.pipeline.Pipeline`)
 to capture the :class:`~fuser.model.tick.TickInput` of every tick; then a
 fresh :class:`~fuser.model.FusionModel` steps through those inputs, and the
 loop's :func:`~fuser.loop.estimate_of` builds each wire estimate ("publish"),
 so the figures are the model's alone, no decoding or recording. The total per
-tick is timed bare, the median of ``--runs`` runs.
+tick is timed bare, the median of ``--runs`` runs. With ``--baseline REF`` the
+same totals are measured with REF's code (a temporary worktree, in a child
+process) just before and just after this tree's, the fastest of both kept
+(this tree's then get as many runs).
 
 The split by step is measured in a separate run with every step's function
 wrapped by a timer that charges each call its *exclusive* time (a nested
@@ -33,6 +36,7 @@ both printed.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -40,7 +44,7 @@ import sys
 import tempfile
 import time
 from collections import defaultdict
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -142,6 +146,28 @@ class StepTimer:
                     nested[-1] += elapsed
 
         return timed
+
+
+def bare_totals_us(config: FuserConfig, ticks: list[TickInput], runs: int) -> list[float]:
+    """``runs`` bare totals, us per tick, of stepping through ``ticks`` (kernels loaded first)."""
+    run_ticks(config, ticks[: min(200, len(ticks))])  # kernels loaded, caches warm
+    return [run_ticks(config, ticks) / len(ticks) * 1e6 for _ in range(runs)]
+
+
+def tick_totals_us(logs: list[Path], runs: int) -> dict[str, list[float]]:
+    """:func:`bare_totals_us` of each log's ticks, by the log's name."""
+    totals = {}
+    for log in logs:
+        config = config_for(log)
+        totals[log.name] = bare_totals_us(config, captured_ticks(log, config), runs)
+    return totals
+
+
+def baseline_totals_us(tree: Path, logs: list[Path], runs: int) -> dict[str, list[float]]:
+    """:func:`tick_totals_us` with the code of the worktree ``tree`` (another revision), in a child process."""
+    out = subprocess.run([sys.executable, __file__, "--runs", str(runs), "--totals-json", *map(str, logs)], cwd=tree, check=True,
+                         capture_output=True, text=True, env={**os.environ, "BENCH_CODE_ROOT": str(tree)})
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def timer_overhead_s(n: int = 200_000) -> float:
@@ -247,35 +273,51 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=5, help="runs per log; the median and the fastest are printed (default: 5)")
     parser.add_argument("--skip-compile", action="store_true", help="skip the cold and warm compile measurement")
-    parser.add_argument("--baseline", metavar="REF", help="measure the compile cost of git revision REF's code too, in the same run")
+    parser.add_argument("--baseline", metavar="REF", help="measure git revision REF's code too, in the same run: its per-tick totals "
+                        "just before and after this tree's, and its compile cost")
+    parser.add_argument("--totals-json", action="store_true", help=argparse.SUPPRESS)  # a --baseline child: the bare totals, as JSON
     parser.add_argument("logs", nargs="*", type=Path, help="logs (default: every MCAP in logs/)")
     args = parser.parse_args()
-    logs = args.logs or sorted((ROOT / "logs").glob("*.mcap"))
+    logs = [log.resolve() for log in args.logs] or sorted((ROOT / "logs").glob("*.mcap"))
+    if args.totals_json:
+        print(json.dumps(tick_totals_us(logs, args.runs)))
+        return 0
+    with ExitStack() as stack:
+        tree = stack.enter_context(baseline_tree(args.baseline)) if args.baseline else None
+        return measure(args, logs, tree)
 
+
+def measure(args: argparse.Namespace, logs: list[Path], tree: Path | None) -> int:
+    """Print the per-step table (and, with ``tree``, the baseline's totals beside this tree's), then the compile cost."""
+    before = baseline_totals_us(tree, logs, args.runs) if tree else None
     overhead = timer_overhead_s()
     columns, totals = [], []
     for log in logs:
         config = config_for(log)
         ticks = captured_ticks(log, config)
-        run_ticks(config, ticks[: min(200, len(ticks))])  # kernels loaded, caches warm
-        runs = [run_ticks(config, ticks) / len(ticks) * 1e6 for _ in range(args.runs)]
+        runs = bare_totals_us(config, ticks, 2 * args.runs if tree else args.runs)  # as many runs as the baseline's two sets
         columns.append((log.stem, len(ticks), split_by_step(config, ticks, overhead)))
         totals.append((statistics.median(runs), min(runs)))
+    after = baseline_totals_us(tree, logs, args.runs) if tree else None
     steps = list(STEPS) + [OWN, PUBLISH]
     rows = [["us per tick"] + [f"{name} ({n:,} ticks)" for name, n, _ in columns]]
     rows += [[step] + [f"{split[step]:.1f}" for _, _, split in columns] for step in steps]
     rows.append(["sum of the steps (timed with the split)"] + [f"{sum(split.values()):.1f}" for _, _, split in columns])
-    rows.append([f"total, bare: median of {args.runs} runs"] + [f"{med:.1f}" for med, _ in totals])
-    rows.append([f"total, bare: fastest of {args.runs} runs"] + [f"{fast:.1f}" for _, fast in totals])
+    n_runs = 2 * args.runs if tree else args.runs
+    rows.append([f"total, bare: median of {n_runs} runs"] + [f"{med:.1f}" for med, _ in totals])
+    rows.append([f"total, bare: fastest of {n_runs} runs"] + [f"{fast:.1f}" for _, fast in totals])
     rows.append(["against the target"] + [f"{fast / TICK_TARGET_US:.2f}x of {TICK_TARGET_US:g} us" for _, fast in totals])
+    if before is not None and after is not None:
+        base = [min(before[log.name] + after[log.name]) for log in logs]
+        rows.append([f"{args.baseline}'s code: fastest of {2 * args.runs} runs (before and after, same run)"] + [f"{b:.1f}" for b in base])
+        rows.append([f"{args.baseline}'s / this tree's (fastest)"] + [f"{b / fast:.2f}x" for b, (_, fast) in zip(base, totals)])
     print_table(rows)
     print(f"\n(step timer's own cost, {overhead * 1e9:.0f} ns per wrapped call, taken off; shared machine: noisy figures)")
     if not args.skip_compile:
         table = [["compile (numba cache=True), new interpreter", "imports + simulate 0.5 s", "fuse it (kernels)", "total",
                   "target (kernels)"]]
-        if args.baseline:
-            with baseline_tree(args.baseline) as tree:
-                table += compile_rows(tree, f"{args.baseline}'s code")
+        if tree is not None:
+            table += compile_rows(tree, f"{args.baseline}'s code")
         table += compile_rows(ROOT, "this tree")
         print()
         print_table(table)
