@@ -30,10 +30,10 @@ _MAX_SWEEPS = 60
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _sort_columns(keys: np.ndarray, columns: np.ndarray) -> None:
-    """Sort ``keys`` ascending in place, equal keys in their order (insertion sort: a few entries), and the first
-    ``len(keys)`` columns of ``columns`` alike."""
-    for i in range(1, keys.shape[0]):
+def _sort_columns(keys: np.ndarray, columns: np.ndarray, n: int) -> None:
+    """Sort ``keys[:n]`` ascending in place, equal keys in their order (insertion sort: a few entries), and the first
+    ``n`` columns of ``columns`` alike."""
+    for i in range(1, n):
         j = i
         while j > 0 and keys[j - 1] > keys[j]:
             keys[j - 1], keys[j] = keys[j], keys[j - 1]
@@ -109,7 +109,7 @@ def symmetric_eigh(a_in: np.ndarray) -> tuple:
     evals = np.empty(n)
     for i in range(n):
         evals[i] = a[i, i]
-    _sort_columns(evals, v)
+    _sort_columns(evals, v, n)
     return evals, v
 
 
@@ -171,7 +171,7 @@ def sorted_concentrations(M: np.ndarray, z3: np.ndarray) -> tuple:
         Z[i] = z3[i] if i < 3 else 0.0
         for k in range(4):
             out[k, i] = M[k, i]
-    _sort_columns(Z[:3], out)
+    _sort_columns(Z, out, 3)
     return out, Z, ok
 
 
