@@ -15,6 +15,15 @@ with Rutishauser's stable rotation formulas): for a 4x4 matrix a few sweeps of
 six rotations, no LAPACK call (whose numba bindings cost seconds to compile),
 eigenvectors orthonormal to rounding and small eigenvalues accurate relative to
 the largest.
+
+Compile cost (a fresh install compiles every kernel once, before its first
+tick): each kernel is called with one type signature, a helper used inside
+one kernel is inlined into it at numba IR level (``inline="always"``: not
+compiled and cached on its own, still callable from Python), and arrays are
+made by ``np.empty`` only (each other constructor is one more numba overload
+to compile). ``tests/test_warmup.py`` checks the first two;
+``benchmarks/RESULTS.md`` ("Compile cost, third pass") has the figures. The
+same holds for :mod:`core.saddlepoint`.
 """
 
 from __future__ import annotations

@@ -37,6 +37,10 @@ form, eq. 4): a derivative of order ``k_i`` in ``z_i`` equals
 ``a(k) N`` of a Bingham normalizer in which ``z_i`` appears ``2 k_i + 1``
 times. Here an entry's repetition is passed as a multiplicity, so raising the
 dimension costs nothing.
+
+Compiled as :mod:`core.bingham_kernels` says (one signature per kernel,
+single-use helpers inlined, ``np.empty`` only): the cold compile is a fresh
+install's first start.
 """
 
 from __future__ import annotations
