@@ -4,6 +4,7 @@
     python benchmarks/bench_tick.py --runs 7      # median of 7 runs (default 5)
     python benchmarks/bench_tick.py --skip-compile
     python benchmarks/bench_tick.py --baseline main   # REF's code too, in the same run: per tick and compile cost
+    python benchmarks/bench_tick.py --compile-units --baseline main   # where the cold compile goes, per kernel
 
 Each log is replayed once through the loop (:class:`fuser.pipeline.Pipeline`)
 to capture the :class:`~fuser.model.tick.TickInput` of every tick; then a
@@ -28,6 +29,10 @@ Compile cost (numba, ``cache=True``): a new interpreter imports the model and
 steps one tick of a simulated flight, once after deleting the on-disk caches
 of ``core/`` (cold: every kernel compiled) and once more (warm: loaded from the
 cache). Targets (issue 17): 25 us per tick; cold < 10 s, warm < 1 s.
+``--compile-units`` splits the cold compile by compile unit (a kernel and
+its type signature: a kernel compiled twice shows twice), from numba's
+compile events, in CPU seconds (less sensitive to the other jobs than wall
+time), each unit less the units compiled inside it.
 
 The machine is shared: figures are noisy; the medians and the fastest runs are
 both printed.
@@ -231,6 +236,33 @@ print(imported - start, time.perf_counter() - imported)
 """
 
 
+UNITS_PROBE = COMPILE_PROBE.replace("pipeline = Pipeline(", """
+from numba.core import event
+
+units, stack = {}, []
+
+def short(t):  # Array(float64, 2, 'C', True, aligned=True) -> float64[2d C read-only]
+    if hasattr(t, "ndim") and hasattr(t, "mutable"):
+        return f"{t.dtype}[{t.ndim}d {t.layout}{'' if t.mutable else ' read-only'}]"
+    return str(t)
+
+class Units(event.Listener):  # each compile's CPU seconds, less those of the compiles nested in it
+    def on_start(self, ev):
+        stack.append([time.process_time(), 0.0])
+
+    def on_end(self, ev):
+        begun, nested = stack.pop()
+        spent = time.process_time() - begun
+        fn = ev.data["dispatcher"].py_func
+        key = "numba's own overloads" if fn.__module__.startswith("numba") else f"{fn.__module__}.{fn.__qualname__}({', '.join(map(short, ev.data['args']))})"
+        units[key] = units.get(key, 0.0) + spent - nested
+        if stack:
+            stack[-1][1] += spent
+
+event.register("numba:compile", Units())
+pipeline = Pipeline(""", 1).replace("print(imported - start, time.perf_counter() - imported)", "import json; print(json.dumps(units))")
+
+
 def numba_caches(root: Path = ROOT) -> list[Path]:
     """numba's on-disk caches of the kernels (``core/`` and the model's, ``fuser/``)."""
     return sorted(p for d in ("core", "fuser") for p in (root / d).rglob("*.nb[ic]"))
@@ -260,6 +292,25 @@ def compile_seconds(cold: bool, root: Path = ROOT) -> tuple[float, float]:
     return float(imported), float(fused)
 
 
+def compile_units_s(root: Path = ROOT) -> dict[str, float]:
+    """CPU seconds of each compile (kernel and signature; numba's own overloads together) when a new interpreter
+    fuses the probe's flight with an empty numba cache (a temporary ``NUMBA_CACHE_DIR``), code of the tree ``root``."""
+    with tempfile.TemporaryDirectory() as cache:
+        out = subprocess.run([sys.executable, "-c", UNITS_PROBE], cwd=root, capture_output=True, text=True, check=True,
+                             env={**os.environ, "NUMBA_CACHE_DIR": cache})
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def compile_units_table(trees: list[tuple[str, Path]]) -> list[list[str]]:
+    """One column per tree: each compile's CPU seconds (:func:`compile_units_s`), largest first, and their sum."""
+    units = [compile_units_s(root) for _, root in trees]
+    keys = sorted({k for u in units for k in u}, key=lambda k: -max(u.get(k, 0.0) for u in units))
+    rows = [["compile unit (cold, CPU s, each less the compiles nested in it)"] + [name for name, _ in trees]]
+    rows += [[k] + [f"{u[k]:.2f}" if k in u else "-" for u in units] for k in keys]
+    rows.append([f"sum ({' / '.join(str(len(u)) for u in units)} units)"] + [f"{sum(u.values()):.2f}" for u in units])
+    return rows
+
+
 def print_table(rows: list[list[str]]) -> None:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     fmt = lambda r: "| " + " | ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))) + " |"  # noqa: E731
@@ -275,6 +326,8 @@ def main() -> int:
     parser.add_argument("--skip-compile", action="store_true", help="skip the cold and warm compile measurement")
     parser.add_argument("--baseline", metavar="REF", help="measure git revision REF's code too, in the same run: its per-tick totals "
                         "just before and after this tree's, and its compile cost")
+    parser.add_argument("--compile-units", action="store_true", help="only the cold compile's cost per kernel and signature "
+                        "(with --baseline, REF's beside)")
     parser.add_argument("--totals-json", action="store_true", help=argparse.SUPPRESS)  # a --baseline child: the bare totals, as JSON
     parser.add_argument("logs", nargs="*", type=Path, help="logs (default: every MCAP in logs/)")
     args = parser.parse_args()
@@ -284,6 +337,9 @@ def main() -> int:
         return 0
     with ExitStack() as stack:
         tree = stack.enter_context(baseline_tree(args.baseline)) if args.baseline else None
+        if args.compile_units:
+            print_table(compile_units_table(([(f"{args.baseline}'s code", tree)] if tree else []) + [("this tree", ROOT)]))
+            return 0
         return measure(args, logs, tree)
 
 
