@@ -139,7 +139,8 @@ def log_c3(z: np.ndarray, mult: np.ndarray) -> float:
 
 @njit(cache=True, nogil=True, inline="always")
 def _ones(n: int) -> np.ndarray:
-    """``np.ones(n)``, as a fill of ``np.empty``: the only array constructor the kernels compile."""
+    """``np.ones(n)`` as a filled ``np.empty(n)``, the one array constructor the kernels use (each other is one more
+    numba overload to compile)."""
     out = np.empty(n)
     for i in range(n):
         out[i] = 1.0
@@ -332,7 +333,7 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
 @njit(cache=True, nogil=True)
 def moments(z: np.ndarray) -> np.ndarray:
     """``E[x_i^2] = (dN/dz_i) / sum_k dN/dz_k`` (:func:`core.normalization.moments`), in one call."""
-    grad = _gradient(z.copy())[1]  # a writable copy: the chain below compiles once, for the fit's arrays too
+    grad = _gradient(z.copy())[1]  # a writable copy: log_c3 then compiles once, for the fit's arrays too
     total = 0.0
     for g in grad:
         total += g
