@@ -3,14 +3,18 @@
     python benchmarks/bench_tick.py               # table: us per tick by step, per log; compile cost cold and warm
     python benchmarks/bench_tick.py --runs 7      # median of 7 runs (default 5)
     python benchmarks/bench_tick.py --skip-compile
-    python benchmarks/bench_tick.py --baseline main   # compile cost of REF's kernels too, in the same run
+    python benchmarks/bench_tick.py --baseline main   # REF's code too, in the same run: per tick and compile cost
+    python benchmarks/bench_tick.py --compile-units --baseline main   # where the cold compile goes, per kernel
 
 Each log is replayed once through the loop (:class:`fuser.pipeline.Pipeline`)
 to capture the :class:`~fuser.model.tick.TickInput` of every tick; then a
 fresh :class:`~fuser.model.FusionModel` steps through those inputs, and the
 loop's :func:`~fuser.loop.estimate_of` builds each wire estimate ("publish"),
 so the figures are the model's alone, no decoding or recording. The total per
-tick is timed bare, the median of ``--runs`` runs.
+tick is timed bare, the median of ``--runs`` runs. With ``--baseline REF`` the
+same totals are measured with REF's code (a temporary worktree, in a child
+process) just before and just after this tree's, the fastest of both kept
+(this tree's then get as many runs).
 
 The split by step is measured in a separate run with every step's function
 wrapped by a timer that charges each call its *exclusive* time (a nested
@@ -25,6 +29,10 @@ Compile cost (numba, ``cache=True``): a new interpreter imports the model and
 steps one tick of a simulated flight, once after deleting the on-disk caches
 of ``core/`` (cold: every kernel compiled) and once more (warm: loaded from the
 cache). Targets (issue 17): 25 us per tick; cold < 10 s, warm < 1 s.
+``--compile-units`` splits the cold compile by compile unit (a kernel and
+its type signature: a kernel compiled twice shows twice), from numba's
+compile events, in CPU seconds (less sensitive to the other jobs than wall
+time), each unit less the units compiled inside it.
 
 The machine is shared: figures are noisy; the medians and the fastest runs are
 both printed.
@@ -33,6 +41,7 @@ both printed.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -40,7 +49,7 @@ import sys
 import tempfile
 import time
 from collections import defaultdict
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -144,6 +153,28 @@ class StepTimer:
         return timed
 
 
+def bare_totals_us(config: FuserConfig, ticks: list[TickInput], runs: int) -> list[float]:
+    """``runs`` bare totals, us per tick, of stepping through ``ticks`` (kernels loaded first)."""
+    run_ticks(config, ticks[: min(200, len(ticks))])  # kernels loaded, caches warm
+    return [run_ticks(config, ticks) / len(ticks) * 1e6 for _ in range(runs)]
+
+
+def tick_totals_us(logs: list[Path], runs: int) -> dict[str, list[float]]:
+    """:func:`bare_totals_us` of each log's ticks, by the log's name."""
+    totals = {}
+    for log in logs:
+        config = config_for(log)
+        totals[log.name] = bare_totals_us(config, captured_ticks(log, config), runs)
+    return totals
+
+
+def baseline_totals_us(tree: Path, logs: list[Path], runs: int) -> dict[str, list[float]]:
+    """:func:`tick_totals_us` with the code of the worktree ``tree`` (another revision), in a child process."""
+    out = subprocess.run([sys.executable, __file__, "--runs", str(runs), "--totals-json", *map(str, logs)], cwd=tree, check=True,
+                         capture_output=True, text=True, env={**os.environ, "BENCH_CODE_ROOT": str(tree)})
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def timer_overhead_s(n: int = 200_000) -> float:
     """Seconds a wrapped call costs more than a bare one."""
     def empty() -> None:
@@ -205,6 +236,33 @@ print(imported - start, time.perf_counter() - imported)
 """
 
 
+UNITS_PROBE = COMPILE_PROBE.replace("pipeline = Pipeline(", """
+from numba.core import event
+
+units, stack = {}, []
+
+def short(t):  # Array(float64, 2, 'C', True, aligned=True) -> float64[2d C read-only]
+    if hasattr(t, "ndim") and hasattr(t, "mutable"):
+        return f"{t.dtype}[{t.ndim}d {t.layout}{'' if t.mutable else ' read-only'}]"
+    return str(t)
+
+class Units(event.Listener):  # each compile's CPU seconds, less those of the compiles nested in it
+    def on_start(self, ev):
+        stack.append([time.process_time(), 0.0])
+
+    def on_end(self, ev):
+        begun, nested = stack.pop()
+        spent = time.process_time() - begun
+        fn = ev.data["dispatcher"].py_func
+        key = "numba's own overloads" if fn.__module__.startswith("numba") else f"{fn.__module__}.{fn.__qualname__}({', '.join(map(short, ev.data['args']))})"
+        units[key] = units.get(key, 0.0) + spent - nested
+        if stack:
+            stack[-1][1] += spent
+
+event.register("numba:compile", Units())
+pipeline = Pipeline(""", 1).replace("print(imported - start, time.perf_counter() - imported)", "import json; print(json.dumps(units))")
+
+
 def numba_caches(root: Path = ROOT) -> list[Path]:
     """numba's on-disk caches of the kernels (``core/`` and the model's, ``fuser/``)."""
     return sorted(p for d in ("core", "fuser") for p in (root / d).rglob("*.nb[ic]"))
@@ -234,6 +292,25 @@ def compile_seconds(cold: bool, root: Path = ROOT) -> tuple[float, float]:
     return float(imported), float(fused)
 
 
+def compile_units_s(root: Path = ROOT) -> dict[str, float]:
+    """CPU seconds of each compile (kernel and signature; numba's own overloads together) when a new interpreter
+    fuses the probe's flight with an empty numba cache (a temporary ``NUMBA_CACHE_DIR``), code of the tree ``root``."""
+    with tempfile.TemporaryDirectory() as cache:
+        out = subprocess.run([sys.executable, "-c", UNITS_PROBE], cwd=root, capture_output=True, text=True, check=True,
+                             env={**os.environ, "NUMBA_CACHE_DIR": cache})
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def compile_units_table(trees: list[tuple[str, Path]]) -> list[list[str]]:
+    """One column per tree: each compile's CPU seconds (:func:`compile_units_s`), largest first, and their sum."""
+    units = [compile_units_s(root) for _, root in trees]
+    keys = sorted({k for u in units for k in u}, key=lambda k: -max(u.get(k, 0.0) for u in units))
+    rows = [["compile unit (cold, CPU s, each less the compiles nested in it)"] + [name for name, _ in trees]]
+    rows += [[k] + [f"{u[k]:.2f}" if k in u else "-" for u in units] for k in keys]
+    rows.append([f"sum ({' / '.join(str(len(u)) for u in units)} units)"] + [f"{sum(u.values()):.2f}" for u in units])
+    return rows
+
+
 def print_table(rows: list[list[str]]) -> None:
     widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     fmt = lambda r: "| " + " | ".join(c.ljust(w) if i == 0 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))) + " |"  # noqa: E731
@@ -247,35 +324,56 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=5, help="runs per log; the median and the fastest are printed (default: 5)")
     parser.add_argument("--skip-compile", action="store_true", help="skip the cold and warm compile measurement")
-    parser.add_argument("--baseline", metavar="REF", help="measure the compile cost of git revision REF's code too, in the same run")
+    parser.add_argument("--baseline", metavar="REF", help="measure git revision REF's code too, in the same run: its per-tick totals "
+                        "just before and after this tree's, and its compile cost")
+    parser.add_argument("--compile-units", action="store_true", help="only the cold compile's cost per kernel and signature "
+                        "(with --baseline, REF's beside)")
+    parser.add_argument("--totals-json", action="store_true", help=argparse.SUPPRESS)  # a --baseline child: the bare totals, as JSON
     parser.add_argument("logs", nargs="*", type=Path, help="logs (default: every MCAP in logs/)")
     args = parser.parse_args()
-    logs = args.logs or sorted((ROOT / "logs").glob("*.mcap"))
+    logs = [log.resolve() for log in args.logs] or sorted((ROOT / "logs").glob("*.mcap"))
+    if args.totals_json:
+        print(json.dumps(tick_totals_us(logs, args.runs)))
+        return 0
+    with ExitStack() as stack:
+        tree = stack.enter_context(baseline_tree(args.baseline)) if args.baseline else None
+        if args.compile_units:
+            print_table(compile_units_table(([(f"{args.baseline}'s code", tree)] if tree else []) + [("this tree", ROOT)]))
+            return 0
+        return measure(args, logs, tree)
 
+
+def measure(args: argparse.Namespace, logs: list[Path], tree: Path | None) -> int:
+    """Print the per-step table (and, with ``tree``, the baseline's totals beside this tree's), then the compile cost."""
+    before = baseline_totals_us(tree, logs, args.runs) if tree else None
     overhead = timer_overhead_s()
     columns, totals = [], []
     for log in logs:
         config = config_for(log)
         ticks = captured_ticks(log, config)
-        run_ticks(config, ticks[: min(200, len(ticks))])  # kernels loaded, caches warm
-        runs = [run_ticks(config, ticks) / len(ticks) * 1e6 for _ in range(args.runs)]
+        runs = bare_totals_us(config, ticks, 2 * args.runs if tree else args.runs)  # as many runs as the baseline's two sets
         columns.append((log.stem, len(ticks), split_by_step(config, ticks, overhead)))
         totals.append((statistics.median(runs), min(runs)))
+    after = baseline_totals_us(tree, logs, args.runs) if tree else None
     steps = list(STEPS) + [OWN, PUBLISH]
     rows = [["us per tick"] + [f"{name} ({n:,} ticks)" for name, n, _ in columns]]
     rows += [[step] + [f"{split[step]:.1f}" for _, _, split in columns] for step in steps]
     rows.append(["sum of the steps (timed with the split)"] + [f"{sum(split.values()):.1f}" for _, _, split in columns])
-    rows.append([f"total, bare: median of {args.runs} runs"] + [f"{med:.1f}" for med, _ in totals])
-    rows.append([f"total, bare: fastest of {args.runs} runs"] + [f"{fast:.1f}" for _, fast in totals])
+    n_runs = 2 * args.runs if tree else args.runs
+    rows.append([f"total, bare: median of {n_runs} runs"] + [f"{med:.1f}" for med, _ in totals])
+    rows.append([f"total, bare: fastest of {n_runs} runs"] + [f"{fast:.1f}" for _, fast in totals])
     rows.append(["against the target"] + [f"{fast / TICK_TARGET_US:.2f}x of {TICK_TARGET_US:g} us" for _, fast in totals])
+    if before is not None and after is not None:
+        base = [min(before[log.name] + after[log.name]) for log in logs]
+        rows.append([f"{args.baseline}'s code: fastest of {2 * args.runs} runs (before and after, same run)"] + [f"{b:.1f}" for b in base])
+        rows.append([f"{args.baseline}'s / this tree's (fastest)"] + [f"{b / fast:.2f}x" for b, (_, fast) in zip(base, totals)])
     print_table(rows)
     print(f"\n(step timer's own cost, {overhead * 1e9:.0f} ns per wrapped call, taken off; shared machine: noisy figures)")
     if not args.skip_compile:
         table = [["compile (numba cache=True), new interpreter", "imports + simulate 0.5 s", "fuse it (kernels)", "total",
                   "target (kernels)"]]
-        if args.baseline:
-            with baseline_tree(args.baseline) as tree:
-                table += compile_rows(tree, f"{args.baseline}'s code")
+        if tree is not None:
+            table += compile_rows(tree, f"{args.baseline}'s code")
         table += compile_rows(ROOT, "this tree")
         print()
         print_table(table)

@@ -15,6 +15,15 @@ with Rutishauser's stable rotation formulas): for a 4x4 matrix a few sweeps of
 six rotations, no LAPACK call (whose numba bindings cost seconds to compile),
 eigenvectors orthonormal to rounding and small eigenvalues accurate relative to
 the largest.
+
+Compile cost (a fresh install compiles every kernel once, before its first
+tick): each kernel is called with one type signature, a helper used inside
+one kernel is inlined into it at numba IR level (``inline="always"``: not
+compiled and cached on its own, still callable from Python), and arrays are
+made by ``np.empty`` only (each other constructor is one more numba overload
+to compile). ``tests/test_warmup.py`` checks the first two;
+``benchmarks/RESULTS.md`` ("Compile cost, third pass") has the figures. The
+same holds for :mod:`core.saddlepoint`.
 """
 
 from __future__ import annotations
@@ -29,7 +38,20 @@ __all__ = ["down_alignment_sq", "product_parameters", "rotated_left", "rotated_r
 _MAX_SWEEPS = 60
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
+def _sort_columns(keys: np.ndarray, columns: np.ndarray, n: int) -> None:
+    """Sort ``keys[:n]`` ascending in place, equal keys in their order (insertion sort: a few entries), and the first
+    ``n`` columns of ``columns`` alike."""
+    for i in range(1, n):
+        j = i
+        while j > 0 and keys[j - 1] > keys[j]:
+            keys[j - 1], keys[j] = keys[j], keys[j - 1]
+            for k in range(columns.shape[0]):
+                columns[k, j - 1], columns[k, j] = columns[k, j], columns[k, j - 1]
+            j -= 1
+
+
+@njit(cache=True, nogil=True, inline="always")
 def symmetric_eigh(a_in: np.ndarray) -> tuple:
     """Eigenvalues (ascending) and eigenvectors (columns) of a symmetric matrix, by cyclic Jacobi.
 
@@ -42,8 +64,12 @@ def symmetric_eigh(a_in: np.ndarray) -> tuple:
     bits alone.
     """
     n = a_in.shape[0]
-    a = a_in.copy()
-    v = np.eye(n)
+    a = np.empty((n, n))
+    v = np.empty((n, n))
+    for i in range(n):
+        for k in range(n):
+            a[i, k] = a_in[i, k]
+            v[i, k] = 1.0 if i == k else 0.0
     for sweep in range(_MAX_SWEEPS):
         off = 0.0
         for p in range(n - 1):
@@ -92,19 +118,8 @@ def symmetric_eigh(a_in: np.ndarray) -> tuple:
     evals = np.empty(n)
     for i in range(n):
         evals[i] = a[i, i]
-    order = np.arange(n)
-    for i in range(1, n):  # insertion sort: stable, n is 4
-        j = i
-        while j > 0 and evals[order[j - 1]] > evals[order[j]]:
-            order[j - 1], order[j] = order[j], order[j - 1]
-            j -= 1
-    sorted_evals = np.empty(n)
-    evecs = np.empty((n, n))
-    for i in range(n):
-        sorted_evals[i] = evals[order[i]]
-        for k in range(n):
-            evecs[k, i] = v[k, order[i]]
-    return sorted_evals, evecs
+    _sort_columns(evals, v, n)
+    return evals, v
 
 
 @njit(cache=True, nogil=True)
@@ -159,24 +174,17 @@ def sorted_concentrations(M: np.ndarray, z3: np.ndarray) -> tuple:
     for i in range(3):
         if not (z3[i] <= 0.0 and math.isfinite(z3[i])):
             ok = False
-    order = np.arange(3)
-    for i in range(1, 3):
-        j = i
-        while j > 0 and z3[order[j - 1]] > z3[order[j]]:
-            order[j - 1], order[j] = order[j], order[j - 1]
-            j -= 1
     out = np.empty((4, 4))
-    Z = np.zeros(4)
-    for i in range(3):
-        Z[i] = z3[order[i]]
+    Z = np.empty(4)
+    for i in range(4):
+        Z[i] = z3[i] if i < 3 else 0.0
         for k in range(4):
-            out[k, i] = M[k, order[i]]
-    for k in range(4):
-        out[k, 3] = M[k, 3]
+            out[k, i] = M[k, i]
+    _sort_columns(Z, out, 3)
     return out, Z, ok
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def down_alignment_sq(M: np.ndarray) -> np.ndarray:
     """Squared cosine, per principal direction ``m_i`` (``i < 3``), between the body axis ``vec(mode^* m_i)``
     and world down (NED ``z``) seen in the body, ``vec(mode^* k mode)``: left-multiplying by ``mode^*`` is

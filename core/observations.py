@@ -29,6 +29,13 @@ from core.bingham import Bingham
 __all__ = ["heading_exponent", "heading_likelihood", "vector_exponent", "vector_likelihood"]
 
 
+def _kernel_array(v: ArrayLike) -> np.ndarray:
+    """``v`` as the one array type the kernels are compiled for: C-contiguous float64 and writable (numba types a
+    read-only array, such as a module's constant, apart, and would compile a kernel a second time for it)."""
+    arr = np.ascontiguousarray(v, dtype=np.float64)
+    return arr if arr.flags.writeable else arr.copy()
+
+
 def _check_sigma(sigma: float) -> None:
     if not sigma > 0:
         raise ValueError("sigma must be positive")
@@ -43,7 +50,7 @@ def vector_exponent(b_body: ArrayLike, r_world: ArrayLike, sigma: float) -> np.n
     gravity reading's per-tick cost.
     """
     _check_sigma(sigma)
-    b, r = np.ascontiguousarray(b_body, dtype=np.float64), np.ascontiguousarray(r_world, dtype=np.float64)
+    b, r = _kernel_array(b_body), _kernel_array(r_world)
     k = _davenport(b, r, float(sigma)) if b.shape == r.shape == (3,) else None
     if k is None:
         raise ValueError("direction vectors must be finite and non-zero")
@@ -107,7 +114,11 @@ def _heading_exponent(q: np.ndarray, heading_error_rad: float, sigma: float) -> 
     """:func:`heading_exponent`, compiled: ``v = (sin(e/2), 0, 0, -cos(e/2)) (x) q_ref``, ``-(2/sigma^2) v v^T``."""
     half = 0.5 * heading_error_rad
     s, c = math.sin(half), -math.cos(half)
-    v = np.array([s * q[0] - c * q[3], s * q[1] - c * q[2], s * q[2] + c * q[1], s * q[3] + c * q[0]])
+    v = np.empty(4)  # not np.array([...]): one array constructor fewer to compile
+    v[0] = s * q[0] - c * q[3]
+    v[1] = s * q[1] - c * q[2]
+    v[2] = s * q[2] + c * q[1]
+    v[3] = s * q[3] + c * q[0]
     kappa = -2.0 / (sigma * sigma)
     out = np.empty((4, 4))
     for i in range(4):

@@ -37,6 +37,10 @@ form, eq. 4): a derivative of order ``k_i`` in ``z_i`` equals
 ``a(k) N`` of a Bingham normalizer in which ``z_i`` appears ``2 k_i + 1``
 times. Here an entry's repetition is passed as a multiplicity, so raising the
 dimension costs nothing.
+
+Compiled as :mod:`core.bingham_kernels` says (one signature per kernel,
+single-use helpers inlined, ``np.empty`` only): the cold compile is a fresh
+install's first start.
 """
 
 from __future__ import annotations
@@ -55,7 +59,7 @@ _LOG_A11 = -2.0 * LOG_2PI  # k_i = k_j = 1: 1/(4 pi^2)
 _LOG_A2 = math.log(0.75) - 2.0 * _LOG_PI  # k_i = 2: Gamma(5/2)/(pi^2 Gamma(1/2)) = 3/(4 pi^2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _solve_u(delta: np.ndarray, mult: np.ndarray) -> float:
     """Root ``u`` of ``sum_i m_i / (2 (delta_i + u)) = 1``, i.e. ``K'(t) = 1``.
 
@@ -133,35 +137,65 @@ def log_c3(z: np.ndarray, mult: np.ndarray) -> float:
     )
 
 
-@njit(cache=True, nogil=True)
-def derivatives(z: np.ndarray, order: int) -> tuple:
-    """``log N``, ``g_i = (dN/dz_i)/N`` and, if ``order == 2``, ``H_ij = (d2N/dz_i dz_j)/N``.
+@njit(cache=True, nogil=True, inline="always")
+def _ones(n: int) -> np.ndarray:
+    """``np.ones(n)`` as a filled ``np.empty(n)``, the one array constructor the kernels use (each other is one more
+    numba overload to compile)."""
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = 1.0
+    return out
 
-    Each derivative is a scaled normalizer of a raised dimension (saddlepoint
-    paper, Corollary 2 and eq. 4).
-    """
+
+@njit(cache=True, nogil=True, inline="always")
+def _gradient(z: np.ndarray) -> tuple:
+    """``log N`` and ``g_i = (dN/dz_i)/N``: each derivative a scaled normalizer of a raised dimension
+    (saddlepoint paper, Corollary 2 and eq. 4)."""
     n = z.shape[0]
-    ones = np.ones(n)
-    log_n = log_c3(z, ones)
+    mult = _ones(n)
+    log_n = log_c3(z, mult)
     grad = np.empty(n)
-    hess = np.zeros((n, n))
-    mult = ones.copy()
     for i in range(n):
         mult[i] += 2.0
         grad[i] = math.exp(_LOG_A1 + log_c3(z, mult) - log_n)
-        if order == 2:
-            for j in range(i, n):
-                if j == i:
-                    mult[i] += 2.0
-                    hess[i, i] = math.exp(_LOG_A2 + log_c3(z, mult) - log_n)
-                    mult[i] -= 2.0
-                else:
-                    mult[j] += 2.0
-                    v = math.exp(_LOG_A11 + log_c3(z, mult) - log_n)
-                    mult[j] -= 2.0
-                    hess[i, j] = v
-                    hess[j, i] = v
         mult[i] -= 2.0
+    return log_n, grad
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _hessian(z: np.ndarray, log_n: float) -> np.ndarray:
+    """``H_ij = (d2N/dz_i dz_j)/N`` for ``log_n = log N(z)`` (eq. 4, ``|k| = 2``)."""
+    n = z.shape[0]
+    hess = np.empty((n, n))  # every entry is written
+    mult = _ones(n)
+    for i in range(n):
+        mult[i] += 2.0
+        for j in range(i, n):
+            if j == i:
+                mult[i] += 2.0
+                hess[i, i] = math.exp(_LOG_A2 + log_c3(z, mult) - log_n)
+                mult[i] -= 2.0
+            else:
+                mult[j] += 2.0
+                v = math.exp(_LOG_A11 + log_c3(z, mult) - log_n)
+                mult[j] -= 2.0
+                hess[i, j] = v
+                hess[j, i] = v
+        mult[i] -= 2.0
+    return hess
+
+
+@njit(cache=True, nogil=True)
+def derivatives(z: np.ndarray, order: int) -> tuple:
+    """``log N``, ``g_i = (dN/dz_i)/N`` and, if ``order == 2``, ``H_ij = (d2N/dz_i dz_j)/N`` (zeros otherwise).
+
+    Each derivative is a scaled normalizer of a raised dimension (saddlepoint
+    paper, Corollary 2 and eq. 4). The per-tick kernels call :func:`_gradient`
+    and :func:`_hessian` themselves: an ``order`` that is a constant in one
+    caller and a variable in another would compile this twice.
+    """
+    log_n, grad = _gradient(z)
+    hess = _hessian(z, log_n) if order == 2 else np.zeros((z.shape[0], z.shape[0]))
     return log_n, grad, hess
 
 
@@ -174,16 +208,19 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
     ``d log m_i / dz_j = (H_ij - g_i g_j) / g_i - sum_k (H_kj - g_k g_j) / G``.
     """
     n = z.shape[0]
-    _, g, h = derivatives(z, 2 if with_jacobian else 1)
+    log_n, g = _gradient(z)
     total = 0.0
     for i in range(n):
         total += g[i]
-    m = g / total
+    m = np.empty(n)
+    for i in range(n):
+        m[i] = g[i] / total
     res = np.empty(n - 1)
     for i in range(n - 1):
         res[i] = math.log(m[i]) - log_target[i]
     jac = np.empty((n - 1, n - 1))
     if with_jacobian:
+        h = _hessian(z, log_n)
         for j in range(n - 1):
             col = 0.0
             for k in range(n):
@@ -193,7 +230,7 @@ def _log_moment_residual(z: np.ndarray, log_target: np.ndarray, with_jacobian: b
     return res, m, jac
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _sum_squares(v: np.ndarray) -> float:
     s = 0.0
     for x in v:
@@ -201,7 +238,7 @@ def _sum_squares(v: np.ndarray) -> float:
     return s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
     """``-(J^T J + mu I)^-1 J^T r`` by Cholesky; ``mu`` is 1e-12 of the trace.
 
@@ -210,14 +247,18 @@ def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
     unknowns and LAPACK's numba bindings cost seconds of compilation.
     """
     k = res.shape[0]
-    a = np.zeros((k, k))
-    b = np.zeros(k)
+    a = np.empty((k, k))
+    b = np.empty(k)
     for i in range(k):
         for j in range(k):
+            s = 0.0
             for r in range(k):
-                a[i, j] += jac[r, i] * jac[r, j]
+                s += jac[r, i] * jac[r, j]
+            a[i, j] = s
+        s = 0.0
         for r in range(k):
-            b[i] -= jac[r, i] * res[r]
+            s -= jac[r, i] * res[r]
+        b[i] = s
     trace = 0.0
     for i in range(k):
         trace += a[i, i]
@@ -246,7 +287,7 @@ def _gauss_newton_step(jac: np.ndarray, res: np.ndarray) -> np.ndarray:
     return b
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter: int) -> tuple:
     """Gauss-Newton for ``log m(z) = log target`` with ``z_n = 0`` fixed (saddlepoint paper, sec. III-B).
 
@@ -260,7 +301,9 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
     """
     n = z0.shape[0]
     z = z0.copy()
-    res, m, jac = _log_moment_residual(z, log_target, True)
+    # the Jacobian if a step may follow: a flag computed, not the constant True, so that this call and the
+    # loop's share one compiled specialization (a literal argument compiles one of its own)
+    res, m, jac = _log_moment_residual(z, log_target, max_iter > 0)
     cost = _sum_squares(res)
     trial = z.copy()
     for _ in range(max_iter):
@@ -277,7 +320,8 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
             if cost_new <= cost or scale < 1e-4:
                 break
             scale *= 0.5
-        z[:] = trial
+        for i in range(n):  # a loop: ``z[:] = trial`` compiles a shape check whose message formatting costs 2.4 s
+            z[i] = trial[i]
         res = res_new
         m = m_new
         cost = cost_new
@@ -289,7 +333,7 @@ def fit_log_moments(z0: np.ndarray, log_target: np.ndarray, tol: float, max_iter
 @njit(cache=True, nogil=True)
 def moments(z: np.ndarray) -> np.ndarray:
     """``E[x_i^2] = (dN/dz_i) / sum_k dN/dz_k`` (:func:`core.normalization.moments`), in one call."""
-    grad = derivatives(z.copy(), 1)[1]  # a writable copy: the chain below compiles once, for the fit's arrays too
+    grad = _gradient(z.copy())[1]  # a writable copy: log_c3 then compiles once, for the fit's arrays too
     total = 0.0
     for g in grad:
         total += g
@@ -298,16 +342,15 @@ def moments(z: np.ndarray) -> np.ndarray:
     return grad
 
 
-@njit(cache=True, nogil=True)
-def _stable_order(v: np.ndarray) -> np.ndarray:
-    """Indices sorting ``v`` ascending, equal entries in their order (insertion sort: ``v`` has a few entries)."""
-    order = np.arange(v.shape[0])
-    for i in range(1, v.shape[0]):
+@njit(cache=True, nogil=True, inline="always")
+def _sort_alongside(keys: np.ndarray, values: np.ndarray) -> None:
+    """Sort ``keys`` ascending in place, equal keys in their order, and ``values`` alike (insertion sort: a few entries)."""
+    for i in range(1, keys.shape[0]):
         j = i
-        while j > 0 and v[order[j - 1]] > v[order[j]]:
-            order[j - 1], order[j] = order[j], order[j - 1]
+        while j > 0 and keys[j - 1] > keys[j]:
+            keys[j - 1], keys[j] = keys[j], keys[j - 1]
+            values[j - 1], values[j] = values[j], values[j - 1]
             j -= 1
-    return order
 
 
 @njit(cache=True, nogil=True)
@@ -333,10 +376,5 @@ def fit_moments(target: np.ndarray, start: np.ndarray, min_moment: float, tol: f
     for i in range(n):
         z0[i] = 0.5 / t[n - 1] - 0.5 / t[i] if start.shape[0] == 0 else start[i]
     z, m = fit_log_moments(z0, log_t, tol, max_iter)
-    order = _stable_order(z)
-    z_sorted = np.empty(n)
-    m_sorted = np.empty(n)
-    for i in range(n):
-        z_sorted[i] = z[order[i]]
-        m_sorted[i] = m[order[i]]
-    return z_sorted, m_sorted
+    _sort_alongside(z, m)
+    return z, m

@@ -3,12 +3,13 @@
 numba compiles each kernel on its first call (``cache=True``: on disk after
 that, :mod:`core.bingham_kernels`, :mod:`core.saddlepoint`). In a live run
 that first call lands in the first ticks: on a fresh install the flight's
-first seconds wait some 15 s for the compiler, and their samples arrive late
-(a paced ``sim`` right after installing ended 2.8 deg off reporting 10, the
-same run from the cache 1.4 deg reporting 4). So the live commands first
-fuse a few seconds of the built-in simulator, GNSS included, through a
-throwaway loop at full speed: every kernel a tick calls is compiled, or
-loaded from the cache, before the first real sample. Nothing of it reaches
+first seconds would wait for the compiler (some 6 s; 15 s before the kernels
+were arranged to compile once each, benchmarks/RESULTS.md), and their samples
+arrive late (a paced ``sim`` right after installing ended 2.8 deg off
+reporting 10, the same run from the cache 1.4 deg reporting 4). So the live
+commands first fuse a few seconds of the built-in simulator, GNSS included,
+through a throwaway loop at full speed: every kernel a tick calls is
+compiled, or loaded from the cache, before the first real sample. Nothing of it reaches
 the outputs; the live loop starts from its own initial state.
 """
 
