@@ -237,9 +237,6 @@ class BiasSettings(Settings):
     attitude by itself times this)."""
     correlation_without_feedback_s: Seconds = 10.0
     """Correlation time of the residual bias in the process noise while it is not learnt in motion."""
-    motion_tilt_noise_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
-    """Error of the low-passed down the plain tilt correction follows (the linear acceleration its low-pass leaves),
-    correlated over the tilt time constant: the noise of the tilt correction as a measurement of the bias."""
     learn_max_rate_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.2
     """The integral feedback (GNSS aiding, the autopilot's attitude) learns only in ticks rotating slower than this."""
     learn_max_uncertainty_deg: Annotated[float, Range(gt=0, unit="deg")] = 5.0
@@ -291,6 +288,11 @@ class AccelSettings(Settings):
     tilt_bias_error_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
     """Tilt error a residual bias may build up within one correction time constant: the time constant is
     ``tilt_bias_error / bias sigma``, capped at ``lowpass_s`` (fast while the bias is unknown)."""
+    lowpass_error_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
+    """Error of the low-passed down the plain tilt correction follows (the linear acceleration its low-pass leaves),
+    correlated over the tilt time constant: the sigma its innovation gate allows once converged (with the state's
+    doubt), and the noise of the tilt correction as a measurement of the bias (:mod:`fuser.model.bias`; this was
+    ``bias.motion_tilt_noise_deg``)."""
     norm_gate_fraction: Annotated[float, Range(gt=0)] = 0.2
     """Gate when | |f| - g | / g of the low-passed specific force exceeds this (manoeuvres, impacts)."""
     gravity_m_s2: Annotated[float, Range(gt=0, unit="m/s^2")] = 9.80665

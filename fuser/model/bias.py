@@ -62,7 +62,7 @@ a correction-rate error of about ``n / max(tau_2, tau_c)`` (an error slower
 than the correction is followed at its own rate of change; a faster one is
 averaged over ``tau_2``), correlated over ``max(tau_2, tau_c)``, so counted
 once per that (consecutive corrections share it). For the plain tilt
-``tau_c = tau`` and ``n^2`` is ``motion_tilt_noise_deg`` squared (the linear
+``tau_c = tau`` and ``n^2`` is ``accel.lowpass_error_deg`` squared (the linear
 acceleration the low-pass leaves) plus the tilt the unaided accelerometer's
 norm reveals it cannot see, or the tilt its corrections have absorbed, whichever
 is larger (:func:`fuser.model.unaided.unseen_variances_rad2`: in a sustained
@@ -326,7 +326,7 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     if (tilt is not None and tilt_gain is not None and tilt.diagnostic is not None and tilt.diagnostic.outcome == "fused"
             and may_learn(params, at_rest, math.degrees(math.sqrt(tilt_variance)))):
         unseen_rad2 = unseen_variances_rad2(config.accel, unaided, None)[0]
-        tilt_evidence = TiltEvidence(tilt_gain, interval_s, math.radians(params.motion_tilt_noise_deg) ** 2 + unseen_rad2)
+        tilt_evidence = TiltEvidence(tilt_gain, interval_s, math.radians(config.accel.lowpass_error_deg) ** 2 + unseen_rad2)
     if (heading is not None and heading_gain is not None and heading.diagnostic.outcome == "fused"
             and may_learn(params, at_rest, prior_doubt_deg)):
         heading_evidence = HeadingEvidence(heading_gain, heading_interval_s, math.radians(config.mag.error_deg), config.mag.correlation_s)
