@@ -96,7 +96,7 @@ def test_without_gnss_the_unseen_acceleration_widens_the_uncertainty(flown):
     (fuser/model/unaided.py): the low-passed specific force's excess norm (a sustained turn), and the tilt the
     plain update's corrections have absorbed (a transient: a multirotor's thrust norm grows only with the square of
     its acceleration, so its 2-5 deg errors stay within the norm's tolerance). Measured, seed 0, 90 % region
-    (RMS off, reported): multirotor 97 % (2.4 deg, 4.6), aggressive 92 % (3.7, 5.6), fixed wing 92 % (11.7, 50.1).
+    (RMS off, reported): multirotor 97 % (2.4 deg, 4.0), aggressive 96 % (3.4, 4.5), fixed wing 90 % (11.1, 50.1).
     Before the absorbed tilt: 48 % (2.9, 3.6), 33 % (4.3, 3.8), 75 % (12.9, 50.4); before the excess norm the fixed
     wing was at 21 %, reporting 11.4."""
     name, _, (alone, level_alone) = flown

@@ -71,7 +71,7 @@ aided or the autopilot's attitude's, whose references are not the
 accelerometer's); the autopilot's attitude clears the sum, and aided readings
 shrink it by their gain as they do the excess (:func:`corrected`). On the
 simulated multirotor without GNSS the 90 % region held the truth on 48 % of
-ticks, 2.9 deg RMS off reporting 3.6; with it, 97 %, 2.4 deg off reporting 4.6
+ticks, 2.9 deg RMS off reporting 3.6; with it, 97 %, 2.4 deg off reporting 4.0
 (``tests/test_fuser_gnss_flights.py``).
 
 When GNSS velocity aiding starts (again) with an excess left, the tilt it
