@@ -617,6 +617,11 @@ _SWITCHES = {
 }
 """Old keys whose 0 or None used to switch a feature: the flag that does it now."""
 
+MOVED_BETWEEN_GROUPS: dict[str, str] = {
+    "bias.motion_tilt_noise_deg": "accel.lowpass_error_deg",
+}
+"""Grouped keys that moved to another group (old ``group.key``: new ``group.key``)."""
+
 
 def _build(cls: type, table: Mapping[str, Any], section: str) -> Any:
     """``cls`` from a TOML table: nested tables build the groups; unknown and moved keys are errors naming the key."""
@@ -628,6 +633,10 @@ def _build(cls: type, table: Mapping[str, Any], section: str) -> Any:
                 group, _, name = MOVED[key].partition(".")
                 note = f" ({_SWITCHES[key]})" if key in _SWITCHES else ""
                 raise ValueError(f"{section}.{key} has moved: set {name} under [fuser.{group}]{note}")
+            moved = MOVED_BETWEEN_GROUPS.get(f"{section.removeprefix('fuser.')}.{key}")
+            if moved is not None:
+                group, _, name = moved.partition(".")
+                raise ValueError(f"{section}.{key} has moved: set {name} under [fuser.{group}]")
             near = difflib.get_close_matches(key, list(fields), n=1)
             raise ValueError(f"{section}.{key} is not a setting" + (f" (did you mean {near[0]}?)" if near else ""))
         default = fields[key].default
