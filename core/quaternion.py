@@ -13,6 +13,7 @@ Distribution" (unscented paper), sec. II and eq. (4).
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,6 +33,7 @@ __all__ = [
     "power",
     "right_matrix",
     "rotate",
+    "rotvec_between",
     "to_axis_angle",
     "to_matrix",
     "to_rotvec",
@@ -236,6 +238,14 @@ def to_rotvec(q: ArrayLike) -> NDArray[np.float64]:
 def power(q: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
     """``q**c``: the rotation about the same axis by ``c`` times the angle (unscented paper, sec. II)."""
     return from_rotvec(np.asarray(c, dtype=float)[..., None] * to_rotvec(q))
+
+
+def rotvec_between(q_from: ArrayLike, q_to: ArrayLike, frame: Literal["world", "body"]) -> NDArray[np.float64]:
+    """Rotation vector of the turn taking ``q_from`` to ``q_to``: in the world frame ``q_to (x) q_from^-1``
+    (``q_to = exp(r) (x) q_from``), in the body frame ``q_from^-1 (x) q_to`` (``q_to = q_from (x) exp(r)``).
+    A filter's correction of its prediction, for one."""
+    turn = multiply(q_to, conjugate(q_from)) if frame == "world" else multiply(conjugate(q_from), q_to)
+    return to_rotvec(turn)
 
 
 def angular_distance(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:

@@ -128,3 +128,12 @@ def test_bad_quaternions_raise(bad):
 def test_normalize_rejects_zero():
     with pytest.raises(ValueError, match="zero"):
         quat.normalize([0, 0, 0, 0])
+
+
+@given(raw_quat, raw_quat)
+def test_rotvec_between_matches_scipy_in_both_frames(a, b):
+    p, q = unit(a), unit(b)
+    world = (scipy_rot(q) * scipy_rot(p).inv()).as_rotvec()  # q = exp(r) p
+    body = (scipy_rot(p).inv() * scipy_rot(q)).as_rotvec()  # q = p exp(r)
+    np.testing.assert_allclose(quat.rotvec_between(p, q, "world"), world, atol=1e-7)
+    np.testing.assert_allclose(quat.rotvec_between(p, q, "body"), body, atol=1e-7)

@@ -233,7 +233,7 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
     (a bias known better from rest stays as known).
     """
     assert state.rotation_lp is not None and state.rotated_lp_rad_s is not None
-    rotvec = quat.to_rotvec(quat.multiply(posterior_q, quat.conjugate(predicted_q))).tolist()  # world frame
+    rotvec = quat.rotvec_between(predicted_q, posterior_q, "world").tolist()
     spurious = (scale_error * rate_rad_s) ** 2  # a scale error turns the rate into a correction as a bias would
     rows: list[int] = []
     stage: list[int] = []
@@ -346,7 +346,7 @@ def integral_feedback(params: BiasSettings, state: BiasState, predicted_q: np.nd
     time constant (the covariance scaled, its shape kept), and never raises
     it (a bias learnt at rest is known better than feedback can tell).
     """
-    correction = quat.to_rotvec(quat.multiply(quat.conjugate(predicted_q), posterior_q)).tolist()
+    correction = quat.rotvec_between(predicted_q, posterior_q, "body").tolist()
     tau = params.time_constant_s
     estimate = _clipped([b - c / tau for b, c in zip(state.estimate_rad_s.tolist(), correction)], params.max_abs_rad_s)
     decay = min(1.0, dt_s / tau)

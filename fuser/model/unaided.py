@@ -195,7 +195,7 @@ def absorbed(params: AccelSettings, state: UnaidedState, interval_s: float, tau_
     north, east = keep * north, keep * east
     if correction is not None:
         predicted_q, posterior_q = correction
-        turn = quat.to_rotvec(quat.multiply(posterior_q, quat.conjugate(predicted_q))).tolist()  # world frame
+        turn = quat.rotvec_between(predicted_q, posterior_q, "world").tolist()
         north, east = north + turn[0], east + turn[1]
     return UnaidedState(state.excess_m2_s4, state.norm_mean_m_s2, state.norm_mean_s, (north, east))
 
