@@ -608,19 +608,16 @@ MOVED: dict[str, str] = {
     "attitude_sigma_deg": "attitude.sigma_deg",
     "zenoh_listen": "zenoh.listen",
     "zenoh_connect": "zenoh.connect",
+    "bias.motion_tilt_noise_deg": "accel.lowpass_error_deg",
 }
-"""Flat keys of the configuration before it was grouped, and where each one lives now."""
+"""Keys that moved, by their old path below ``fuser`` (the flat keys of the configuration before it was grouped,
+``group.key`` for one that moved between groups), and where each one lives now."""
 _SWITCHES = {
     "bias_time_constant_s": "bias.feedback_enabled = false switches the feedback off",
     "rest_min_s": "rest.enabled = false switches rest detection off",
     "attitude_sigma_deg": 'attitude.mode = "always" fuses the attitude',
 }
 """Old keys whose 0 or None used to switch a feature: the flag that does it now."""
-
-MOVED_BETWEEN_GROUPS: dict[str, str] = {
-    "bias.motion_tilt_noise_deg": "accel.lowpass_error_deg",
-}
-"""Grouped keys that moved to another group (old ``group.key``: new ``group.key``)."""
 
 
 def _build(cls: type, table: Mapping[str, Any], section: str) -> Any:
@@ -629,14 +626,11 @@ def _build(cls: type, table: Mapping[str, Any], section: str) -> Any:
     values: dict[str, Any] = {}
     for key, value in table.items():
         if key not in fields:
-            if section == "fuser" and key in MOVED:
-                group, _, name = MOVED[key].partition(".")
-                note = f" ({_SWITCHES[key]})" if key in _SWITCHES else ""
+            old = key if section == "fuser" else f"{section.removeprefix('fuser.')}.{key}"
+            if old in MOVED:
+                group, _, name = MOVED[old].partition(".")
+                note = f" ({_SWITCHES[old]})" if old in _SWITCHES else ""
                 raise ValueError(f"{section}.{key} has moved: set {name} under [fuser.{group}]{note}")
-            moved = MOVED_BETWEEN_GROUPS.get(f"{section.removeprefix('fuser.')}.{key}")
-            if moved is not None:
-                group, _, name = moved.partition(".")
-                raise ValueError(f"{section}.{key} has moved: set {name} under [fuser.{group}]")
             near = difflib.get_close_matches(key, list(fields), n=1)
             raise ValueError(f"{section}.{key} is not a setting" + (f" (did you mean {near[0]}?)" if near else ""))
         default = fields[key].default
