@@ -56,12 +56,14 @@ from bisect import bisect_left, bisect_right, insort
 from collections import Counter, deque
 from typing import Any, Mapping
 
+from core.bingham import Bingham
 from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
 from fuser.config import FuserConfig, LatencySettings
 from fuser.model import FusionModel, TickInput, TickResult
 from fuser.model.extrapolation import ahead_ns
+from fuser.model.output import OutputState, advanced, at, started
 
 __all__ = ["FusionLoop", "Timeline", "estimate_of", "stream_of", "vehicle_of"]
 
@@ -197,6 +199,11 @@ class FusionLoop:
         """Per transport, the vehicle fused: the one of its first IMU sample."""
         self._latest_diagnostics: dict[str, dict[str, Any]] = {}
         self._ahead_ns = ahead_ns(config)
+        self._imu_delay_ns = round(config.extrapolation.imu_delay_ms * 1e6)
+        self._output: OutputState | None = None
+        """The output predictor since the last tick (``extrapolation.every_imu_sample``; None: off or waiting)."""
+        self._last_result: TickResult | None = None
+        self._last_counters: dict[str, int] = {}
 
     @property
     def latency_ns(self) -> int:
@@ -206,7 +213,11 @@ class FusionLoop:
     def due_ns(self, estimate: Estimate) -> int:
         """The clock time the tick that made ``estimate`` was due: its tick time (the estimate is stamped
         ``ahead_ns`` after it, :mod:`fuser.model.extrapolation`) plus the wait it ran under. For ticks run
-        together to catch up, the last one's wait (the smallest): never later than the tick's real due time."""
+        together to catch up, the last one's wait (the smallest): never later than the tick's real due time. With
+        ``extrapolation.every_imu_sample`` every estimate is stamped when it is due: a tick's at its due time, the
+        output predictor's at its sample's arrival."""
+        if self.config.extrapolation.every_imu_sample:
+            return estimate.t_ns
         return estimate.t_ns - self._ahead_ns + self._wait_ns
 
     @property
@@ -218,8 +229,10 @@ class FusionLoop:
         """The wait of the next tick: the timeline's, or half a period less than the last tick's if that is more."""
         return max(self.timeline.wait_ns, self._wait_ns - self.period_ns // 2)
 
-    def push(self, sample: Sample, receive_ns: int) -> None:
-        """Hand a sample to the loop; it is fused by the tick that covers its time."""
+    def push(self, sample: Sample, receive_ns: int) -> list[Estimate]:
+        """Hand a sample to the loop; it is fused by the tick that covers its time. With
+        ``extrapolation.every_imu_sample``, a sample of the reference IMU returns the output predictor's estimate
+        at its arrival (:mod:`fuser.model.output`); otherwise nothing."""
         if isinstance(sample, (ImuSample, AttitudeSample, GnssSample)):
             vehicle = vehicle_of(sample.source)
             if isinstance(sample, ImuSample):
@@ -230,16 +243,21 @@ class FusionLoop:
                 chosen = self._vehicles.get(sample.source.transport, vehicle)
             if vehicle != chosen:
                 self.counters["other_vehicle"] += 1
-                return
+                return []
         placed = self.timeline.place(stream_of(sample), sample.t_ns, receive_ns)
         if self._last_tick is not None and placed <= self._last_tick:
             self.counters["late"] += 1
-            return
+            return []
         if self._next_tick is None:
             self._next_tick = -(-placed // self.period_ns) * self.period_ns  # first grid point at or after it
         self._pending.append((placed, self._seq, sample))
         self._seq += 1
         self.counters["samples"] += 1
+        if self._output is not None and isinstance(sample, ImuSample) and sample.source == self.reference_imu:
+            self._output = advanced(self.config.gyro, self._output, sample.gyro_rad_s, placed)
+            if self._output is not None and self._output.last_ns == placed:
+                return [self._estimate(receive_ns, at(self._output, receive_ns, self._imu_delay_ns), self._last_result, ())]
+        return []
 
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
@@ -274,12 +292,29 @@ class FusionLoop:
         self._last_tick = tick_ns
         self.counters["ticks"] += 1
         result = self.model.step(TickInput(tick_ns, dt, [p[2] for p in due], [p[0] for p in due]))
-        offset = None if self.reference_imu is None else self.timeline.offsets[(self.reference_imu, ImuSample)]
-        stamp = tick_ns + result.ahead_ns  # the time the published state is for (fuser.model.extrapolation)
-        estimate = estimate_of(stamp, result, {**result.counters, **self.counters}, None if offset is None else stamp - offset)
+        self._last_result, self._last_counters = result, {**result.counters, **self.counters}
+        if self.config.extrapolation.every_imu_sample:  # the tick's state turned through the samples already here
+            stamp, published = tick_ns + self._wait_ns, result.published
+            state = self.model.state
+            self._output = started(result.published, result.lead_rotation, state.gyro.track, state.bias.estimate_rad_s)
+            for placed, _, sample in self._pending:
+                if self._output is not None and isinstance(sample, ImuSample) and sample.source == self.reference_imu:
+                    self._output = advanced(self.config.gyro, self._output, sample.gyro_rad_s, placed)
+            if self._output is not None:
+                published = at(self._output, stamp, self._imu_delay_ns)
+        else:
+            stamp, published = tick_ns + result.ahead_ns, result.published  # the time it is for (fuser.model.extrapolation)
+        estimate = self._estimate(stamp, published, result, result.diagnostics)
         for d in estimate.diagnostics:
             self._latest_diagnostics[d["update"]] = {"t_ns": tick_ns, **d}
         return estimate
+
+    def _estimate(self, stamp_ns: int, published: Bingham, result: TickResult | None, diagnostics: tuple) -> Estimate:
+        """The wire estimate of ``published`` (the last tick's ``result``, or turned from it) stamped ``stamp_ns``."""
+        assert result is not None
+        offset = None if self.reference_imu is None else self.timeline.offsets[(self.reference_imu, ImuSample)]
+        turned = TickResult(published, result.uncertainty_deg, diagnostics, result.counters)  # a right rotation keeps the spread
+        return estimate_of(stamp_ns, turned, self._last_counters, None if offset is None else stamp_ns - offset)
 
 
 def estimate_of(t_ns: int, result: TickResult, counters: Mapping[str, int], sensor_t_ns: int | None) -> Estimate:

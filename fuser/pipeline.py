@@ -38,11 +38,12 @@ class Pipeline:
         self.estimates = 0
 
     def feed(self, sample: Sample, receive_ns: int) -> None:
-        """Run the ticks due before this sample arrived, then record and buffer it."""
+        """Run the ticks due before this sample arrived, then record and buffer it (and emit the output
+        predictor's estimate at it, ``extrapolation.every_imu_sample``)."""
         self.advance(receive_ns)
         for sink in self.inputs:
             sink(sample, receive_ns)
-        self.loop.push(sample, receive_ns)
+        self._emit(self.loop.push(sample, receive_ns))
 
     def advance(self, now_ns: int) -> None:
         """Run every tick due at ``now_ns``."""

@@ -65,6 +65,9 @@ class TickResult:
     """The model's event counters so far (gated readings, gaps, rest ticks, ...)."""
     ahead_ns: int = 0
     """``published`` is the attitude at the tick time plus this (ns): the estimate's stamp."""
+    lead_rotation: np.ndarray | None = None
+    """The body rotation ``published`` was carried by over the lead (None: not turned); the output predictor
+    (:mod:`fuser.model.output`) takes it back."""
 
     @property
     def q_wxyz(self) -> np.ndarray:
