@@ -167,7 +167,10 @@ class Estimate:
     angular deviation; ``euler_deg`` roll, pitch, yaw (ZYX) for convenience.
     ``sensor_t_ns`` is the tick time on the clock of the reference IMU (the
     loop's first IMU stream; the sender's own time), to line estimates up with
-    autopilot logs. ``diagnostics`` says what each measurement update did in
+    autopilot logs. ``predicted``: made by the output predictor between two ticks
+    (``[fuser.extrapolation] every_imu_sample``, :mod:`fuser.model.output`: the last
+    tick's state turned by the gyro to a later IMU sample), not by a tick of the
+    filter. ``diagnostics`` says what each measurement update did in
     the tick (:class:`fuser.model.diagnostics.UpdateDiagnostic` as dicts); it
     is not part of the estimate's payload but recorded beside it on
     ``/diagnostics`` (:meth:`diagnostics_json`).
@@ -181,6 +184,7 @@ class Estimate:
     euler_deg: tuple[float, float, float]
     counters: dict[str, int] = field(default_factory=dict)
     sensor_t_ns: int | None = None
+    predicted: bool = False
     diagnostics: tuple[dict[str, Any], ...] = field(default=(), compare=False)
 
     def to_dict(self) -> dict[str, Any]:
@@ -193,6 +197,7 @@ class Estimate:
             "euler_deg": list(self.euler_deg),
             "counters": dict(sorted(self.counters.items())),
             "sensor_t_ns": self.sensor_t_ns,
+            "predicted": self.predicted,
         }
 
     def to_json(self) -> bytes:
@@ -214,4 +219,5 @@ class Estimate:
             tuple(d["euler_deg"]),  # type: ignore[arg-type]
             dict(d.get("counters", {})),
             d.get("sensor_t_ns"),
+            bool(d.get("predicted", False)),
         )

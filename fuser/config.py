@@ -451,7 +451,7 @@ class ExtrapolationSettings(Settings):
     """How long before its stamp the motion an IMU sample describes happened: the IMU's filter group delay, plus
     half the interval for a rate averaged over the interval since the previous sample. The published state is
     carried this much further (the filter's state, like the samples, is that far behind its tick)."""
-    every_imu_sample: bool = False
+    every_imu_sample: bool = True
     """Publish an estimate at every sample of the reference IMU too, not only at the ticks (PX4 EKF2's output
     predictor, :mod:`fuser.model.output`): the tick's state turned by the gyro through the samples since, each
     stamped at its arrival; the tick's own estimate then at its due time. The filter still runs at ``rate_hz``."""

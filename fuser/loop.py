@@ -204,6 +204,8 @@ class FusionLoop:
         """The output predictor since the last tick (``extrapolation.every_imu_sample``; None: off or waiting)."""
         self._last_result: TickResult | None = None
         self._last_counters: dict[str, int] = {}
+        self._last_stamp_ns = -(2**63)
+        """The last estimate's stamp: with the output predictor the stamps never go back."""
 
     @property
     def latency_ns(self) -> int:
@@ -256,7 +258,7 @@ class FusionLoop:
         if self._output is not None and isinstance(sample, ImuSample) and sample.source == self.reference_imu:
             self._output = advanced(self.config.gyro, self._output, sample.gyro_rad_s, placed)
             if self._output is not None and self._output.last_ns == placed:
-                return [self._estimate(receive_ns, at(self._output, receive_ns, self._imu_delay_ns), self._last_result, ())]
+                return [self._estimate(receive_ns, at(self._output, receive_ns, self._imu_delay_ns), self._last_result, (), predicted=True)]
         return []
 
     def advance(self, now_ns: int) -> list[Estimate]:
@@ -294,7 +296,8 @@ class FusionLoop:
         result = self.model.step(TickInput(tick_ns, dt, [p[2] for p in due], [p[0] for p in due]))
         self._last_result, self._last_counters = result, {**result.counters, **self.counters}
         if self.config.extrapolation.every_imu_sample:  # the tick's state turned through the samples already here
-            stamp, published = tick_ns + self._wait_ns, result.published
+            # stamped when due, or with the last prediction's stamp if a sample received after that went first
+            stamp, published = max(tick_ns + self._wait_ns, self._last_stamp_ns), result.published
             state = self.model.state
             self._output = started(result.published, result.lead_rotation, state.gyro.track, state.bias.estimate_rad_s)
             for placed, _, sample in self._pending:
@@ -309,16 +312,19 @@ class FusionLoop:
             self._latest_diagnostics[d["update"]] = {"t_ns": tick_ns, **d}
         return estimate
 
-    def _estimate(self, stamp_ns: int, published: Bingham, result: TickResult | None, diagnostics: tuple) -> Estimate:
+    def _estimate(self, stamp_ns: int, published: Bingham, result: TickResult | None, diagnostics: tuple,
+                  predicted: bool = False) -> Estimate:
         """The wire estimate of ``published`` (the last tick's ``result``, or turned from it) stamped ``stamp_ns``."""
         assert result is not None
         offset = None if self.reference_imu is None else self.timeline.offsets[(self.reference_imu, ImuSample)]
         turned = TickResult(published, result.uncertainty_deg, diagnostics, result.counters)  # a right rotation keeps the spread
-        return estimate_of(stamp_ns, turned, self._last_counters, None if offset is None else stamp_ns - offset)
+        self._last_stamp_ns = stamp_ns
+        return estimate_of(stamp_ns, turned, self._last_counters, None if offset is None else stamp_ns - offset, predicted)
 
 
-def estimate_of(t_ns: int, result: TickResult, counters: Mapping[str, int], sensor_t_ns: int | None) -> Estimate:
-    """The wire estimate of one tick: the published distribution's mode, parameters and summaries."""
+def estimate_of(t_ns: int, result: TickResult, counters: Mapping[str, int], sensor_t_ns: int | None, predicted: bool = False) -> Estimate:
+    """The wire estimate of one tick (or, ``predicted``, the output predictor's from it): the published distribution's
+    mode, parameters and summaries."""
     state = result.published
     q = tuple(state.mode.tolist())
     return Estimate(
@@ -330,5 +336,6 @@ def estimate_of(t_ns: int, result: TickResult, counters: Mapping[str, int], sens
         euler_deg=tuple(math.degrees(a) for a in euler_from_quaternion(q)),  # type: ignore[arg-type]
         counters=dict(counters),
         sensor_t_ns=sensor_t_ns,
+        predicted=predicted,
         diagnostics=tuple(d.to_dict() for d in result.diagnostics),
     )

@@ -125,15 +125,17 @@ def _input_schema(title: str, description: str, vectors: dict[str, dict[str, Any
 
 ESTIMATE = _obj(
     "bingham_fuser.Estimate",
-    "Fused attitude: Bingham posterior at one loop tick",
+    "Fused attitude: Bingham posterior at one loop tick, or carried by the gyro to a later IMU sample",
     {
-        "t_ns": {"type": "integer", "description": "tick time, ns"},
+        "t_ns": {"type": "integer", "description": "the time the estimate is for, ns"},
         "q_wxyz": _array(4, "unit quaternion w,x,y,z rotating body FRD into world NED"),
         "M": {"type": "array", "items": _array(4, "row"), "minItems": 4, "maxItems": 4, "description": "Bingham M, 4x4 row-major, columns are the axes"},
         "Z": _array(4, "Bingham concentrations, one per column of M (<= 0)"),
         "uncertainty_deg": {"type": "number", "description": "RMS angular deviation, degrees"},
         "euler_deg": _array(3, "roll, pitch, yaw (ZYX), degrees"),
         "counters": {"type": "object", "additionalProperties": _INT},
+        "sensor_t_ns": {"type": ["integer", "null"], "description": "the same instant on the reference IMU's clock, ns"},
+        "predicted": {"type": "boolean", "description": "made by the output predictor between ticks, not by a tick"},
     },
 )
 

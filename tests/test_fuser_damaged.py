@@ -112,7 +112,7 @@ def test_replay_of_a_damaged_log_goes_on_after_the_bad_chunk(tmp_path: Path) -> 
 
     all_inputs = [m for chunk in contents for m in chunk if m[0] in INPUT_TOPICS]
     lost = [m for m in contents[k] if m[0] in INPUT_TOPICS]
-    assert len(lost) > 20  # a 64 KiB chunk holds inputs beside the estimates, /tf and /diagnostics of the same time
+    assert len(lost) > 10  # the damaged 64 KiB chunk holds inputs beside the estimates (one per IMU sample), /pose, /tf and /diagnostics
     assert summary.samples == len(all_inputs) - len(lost)
     assert summary.skipped is not None and summary.skipped.chunks == 1 and summary.skipped.messages == len(contents[k])
     out = read_log(tmp_path / "out.mcap")

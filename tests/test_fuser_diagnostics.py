@@ -67,7 +67,7 @@ def test_replayed_heading_outcomes_match_the_magnet(tmp_path):
     fused = read_log(out)
     schema = CHANNELS["/diagnostics"]
     records = [json.loads(m.data) for m in fused.of(["/diagnostics"])]
-    estimates = fused.estimates()
+    estimates = [e for e in fused.estimates() if not e.predicted]  # the ticks' (the output predictor's run no update)
     assert len(records) >= 0.99 * len(estimates)  # every tick here runs the heading update, but for a dropped IMU sample's
     field = next(u for r in records for u in r["updates"] if u["update"] == "mag_field" and u["reason"] == "wmm")
     assert field["field_ned_gauss"] == pytest.approx(_reference_field(read_log(LOG)).tolist(), abs=1e-12)

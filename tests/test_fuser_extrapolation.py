@@ -72,7 +72,7 @@ def test_a_consumer_holding_the_latest_estimate_sees_it_at_the_middle_of_its_hol
     Carried to the middle of its hold, what is left is the spread of the age over the hold, a period over
     sqrt(12) in RMS: the least any estimate held for a period can have."""
     rms = lambda e: float(np.sqrt(np.mean(e**2)))  # noqa: E731
-    base = FuserConfig(rate_hz=200.0, latency_ms=5.0)
+    base = FuserConfig(rate_hz=200.0, latency_ms=5.0).replace(extrapolation={"every_imu_sample": False})  # one estimate per tick
     _, late, rate = _held_errors(base.replace(extrapolation={"to": "tick", "imu_delay_ms": 0.0}))
     at_time, held, _ = _held_errors(base.replace(extrapolation={"to": "hold_midpoint", "imu_delay_ms": 0.0}))
     spread = math.degrees(rate * 0.005 / math.sqrt(12.0))

@@ -133,14 +133,17 @@ def test_link_outage_garbage_subscriber_restart_and_recorder_kill(tmp_path: Path
     dcan = next(v for k, v in final["sources"].items() if k.startswith("can:"))
     print(f"\nfaults: final status {final}\nsender {report}")
 
-    # 1. the loop kept publishing through the outage: every tick on the 10-ms grid; the tap receives all but the few
-    # the publisher's congestion control DROP sheds when this 2-core machine is loaded (fuser/publish.py), never a run
-    # of them (a stalled loop would leave one)
-    ticks = np.array(sorted(d["t_ns"] for d in published))
+    # 1. the loop kept publishing through the outage: every tick's estimate (each carries the tick count; between
+    # ticks the output predictor's carry their tick's) in order; the tap receives all but the few the publisher's
+    # congestion control DROP sheds when this 2-core machine is loaded (fuser/publish.py), never a run of them (a
+    # stalled loop would leave one)
+    ticks = np.array([d["counters"]["ticks"] for d in published if not d["predicted"]])
     steps = np.diff(ticks)
-    assert np.all(steps % 10_000_000 == 0), "an estimate off the loop's grid"
-    missing = int((steps // 10_000_000 - 1).sum())
-    assert missing <= 0.01 * len(ticks) and steps.max() <= 200_000_000, (missing, int(steps.max()))
+    assert np.all(steps >= 1), "a tick's estimate twice or out of order"
+    missing = int((steps - 1).sum())
+    assert missing <= 0.01 * len(ticks) and steps.max() <= 20, (missing, int(steps.max()))
+    stamps = [d["t_ns"] for d in published]
+    assert stamps == sorted(stamps), "stamps go forward"
     in_outage = (rel >= OUTAGE_AT_S + 0.1) & (rel < OUTAGE_AT_S + OUTAGE_S)
     assert in_outage.sum() >= 0.95 * (OUTAGE_S - 0.1) * 100
     # ... with uncertainty growing while no gyro arrives, and shrinking again after
@@ -191,7 +194,9 @@ def test_link_outage_garbage_subscriber_restart_and_recorder_kill(tmp_path: Path
     got_first, got_second = first.json_lines(), second.json_lines()
     assert len(got_first) > 0 and len(got_second) > 0.8 * (flight_s - SUBSCRIBER_RESTART_AT_S - 2.0) * 100
     assert min(d["t_ns"] for d in got_second) > max(d["t_ns"] for d in got_first)
-    assert {d["t_ns"] for d in got_second} <= set(ticks.tolist())
+    second_stamps = [d["t_ns"] for d in got_second]
+    assert second_stamps == sorted(second_stamps)  # each subscriber's DROP sheds its own few: mostly the tap's estimates
+    assert len(set(second_stamps) - set(stamps)) <= 0.05 * len(second_stamps)
     assert final["publisher"]["subscribed"] and final["publisher"]["errors"] == 0
 
     # 5. the recorder was killed: the loop went on, the status says so, the file is readable up to the kill

@@ -24,9 +24,11 @@ class _Clock:
         return self.t_ns
 
 
-@pytest.mark.parametrize("to, ahead_ms", [("published", 5.0), ("hold_midpoint", 10.0), ("tick", 0.0)])
-def test_latency_is_measured_from_the_tick_due_time(to, ahead_ms):
-    config = FuserConfig().replace(rate_hz=100.0, latency_ms=5.0, latency={"adaptive": False}, extrapolation={"to": to})
+@pytest.mark.parametrize("to, every_imu_sample, ahead_ms", [("published", False, 5.0), ("hold_midpoint", False, 10.0), ("tick", False, 0.0),
+                                                          ("hold_midpoint", True, 5.0)])  # the output predictor: stamped when due
+def test_latency_is_measured_from_the_tick_due_time(to, every_imu_sample, ahead_ms):
+    config = FuserConfig().replace(rate_hz=100.0, latency_ms=5.0, latency={"adaptive": False},
+                                   extrapolation={"to": to, "every_imu_sample": every_imu_sample})
     clock = _Clock()
     pipeline = Pipeline(config, [], [])
     runner = LiveRunner(pipeline, {}, clock=clock)  # type: ignore[arg-type]

@@ -29,6 +29,8 @@ LOGS = Path(__file__).resolve().parents[1] / "logs"
 BROAD_CUT = LOGS / "broad_02_slow_rotation_cut.mcap"
 GYRO = GyroSettings()
 MS = 1_000_000
+PER_TICK = FuserConfig().replace(extrapolation={"every_imu_sample": False})
+"""One estimate per tick, as before the output predictor."""
 
 
 def _base() -> Bingham:
@@ -98,18 +100,18 @@ def _run(config: FuserConfig, inputs) -> list[tuple]:
 
 def test_between_ticks_every_sample_gets_an_estimate_turned_by_the_gyro():
     w = 1.5  # rad/s about body z, level: the yaw grows at w
-    config = FuserConfig().replace(extrapolation={"every_imu_sample": True})
     inputs = _spin_inputs(w, 3.0)
-    out = _run(config, inputs)
-    plain = _run(FuserConfig(), inputs)
+    out = _run(FuserConfig(), inputs)  # the default
+    plain = _run(PER_TICK, inputs)
     assert len(plain) == pytest.approx(300, abs=3)
     after_first_tick = sum(1 for _, received in inputs if received >= out[0][1])
     assert after_first_tick > 1000
     assert len(out) - len(plain) == after_first_tick  # one more per sample of the 400 Hz IMU once a tick has run
     stamps = [e.t_ns for e, _ in out]
     assert all(a < b for a, b in zip(stamps, stamps[1:])), "stamps go forward"
-    assert all(e.t_ns == emitted for e, emitted in out[1:] if not e.diagnostics), "a predicted estimate is stamped at its arrival"
-    later = [(p, e) for (p, _), (e, _) in zip(out[400:], out[401:]) if not e.diagnostics and not p.diagnostics]
+    assert [e.predicted for e, _ in out].count(False) == len(plain)
+    assert all(e.t_ns == emitted for e, emitted in out if e.predicted), "a predicted estimate is stamped at its arrival"
+    later = [(p, e) for (p, _), (e, _) in zip(out[400:], out[401:]) if e.predicted and p.predicted]
     assert len(later) > 500
     for prev, est in later:  # consecutive predictions of one tick: turned by the rate over the time between them
         step = _turn(np.array(prev.q_wxyz), np.array(est.q_wxyz))
@@ -117,11 +119,10 @@ def test_between_ticks_every_sample_gets_an_estimate_turned_by_the_gyro():
         assert est.Z == prev.Z and est.uncertainty_deg == prev.uncertainty_deg
 
 
-def test_off_by_default_nothing_between_ticks():
-    assert FuserConfig().extrapolation.every_imu_sample is False
-    out = _run(FuserConfig(), _spin_inputs(0.5, 1.0))  # samples arrive at 2 ms + k 2.5 ms: never on the 10 ms grid
+def test_switched_off_nothing_between_ticks():
+    out = _run(PER_TICK, _spin_inputs(0.5, 1.0))  # samples arrive at 2 ms + k 2.5 ms: never on the 10 ms grid
     assert len(out) > 50
-    assert all(e.t_ns % 10_000_000 == 0 for e, _ in out)  # every one a tick's, its stamp on the grid (the lead: 5 ms + 5 ms)
+    assert all(e.t_ns % 10_000_000 == 0 and not e.predicted for e, _ in out)  # a tick's each, stamped on the grid (lead 5 + 5 ms)
 
 
 @pytest.fixture(scope="module")
@@ -151,8 +152,8 @@ def test_on_real_data_a_consumer_holding_the_latest_estimate_sees_it_closer_to_t
     inputs, truth_t, truth_q = broad_cut
     base = load_config(BROAD_CUT.with_suffix(".toml"))
     moving = truth_t[0] + round(4.5e9)  # BROAD's movement phase starts 4.07 s into the cut
-    held = _held_errors_deg(base, inputs, truth_t, truth_q, moving)
-    predicted = _held_errors_deg(base.replace(extrapolation={"every_imu_sample": True}), inputs, truth_t, truth_q, moving)
+    held = _held_errors_deg(base.replace(extrapolation={"every_imu_sample": False}), inputs, truth_t, truth_q, moving)
+    predicted = _held_errors_deg(base, inputs, truth_t, truth_q, moving)
     rms = lambda e: math.sqrt(float(np.mean(e**2)))  # noqa: E731
     assert len(predicted) == len(held) > 5000
     # measured (deterministic replay): 0.759 -> 0.720 deg RMS on this slow-rotation cut
@@ -161,6 +162,25 @@ def test_on_real_data_a_consumer_holding_the_latest_estimate_sees_it_closer_to_t
 
 def test_replayed_twice_the_predictions_are_byte_identical(broad_cut):
     inputs, _, _ = broad_cut
-    config = load_config(BROAD_CUT.with_suffix(".toml")).replace(extrapolation={"every_imu_sample": True})
+    config = load_config(BROAD_CUT.with_suffix(".toml"))
     first, second = ([e.to_json() for e, _ in _run(config, inputs)] for _ in range(2))
     assert len(first) > 5000 and first == second
+
+
+def test_a_late_tick_is_never_stamped_before_the_prediction_it_follows():
+    """Live, a runner behind its clock may feed a sample received after a tick's due time before it runs that tick:
+    the tick's estimate then takes that prediction's stamp, so that the stamps never go back."""
+    from fuser.loop import FusionLoop
+
+    loop = FusionLoop(FuserConfig().replace(latency={"adaptive": False}))
+    stamps = []
+    for sample, received in _spin_inputs(0.5, 1.0):
+        stamps += [e.t_ns for e in loop.advance(received)]
+        stamps += [e.t_ns for e in loop.push(sample, received)]
+    due = loop.next_due_ns
+    sample, _ = _spin_inputs(0.5, 1.01)[-1]
+    late = [e.t_ns for e in loop.push(sample, due + 3 * MS)]  # received 3 ms after the next tick was due, fed first
+    ticked = loop.advance(due + 3 * MS)
+    assert late == [due + 3 * MS] and len(ticked) == 1 and not ticked[0].predicted
+    assert ticked[0].t_ns == due + 3 * MS  # not its due time, which lies before the prediction's
+    assert stamps == sorted(stamps) and stamps[-1] < late[0]

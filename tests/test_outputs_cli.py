@@ -37,7 +37,9 @@ def test_sim_publishes_to_ros2_foxglove_and_a_ground_station(tmp_path: Path, cap
     router = f"tcp/127.0.0.1:{free_port()}"
     cfg = tmp_path / "fuser.toml"
     cfg.write_text(f'[fuser]\nrate_hz = 50\n[fuser.ros2]\ndomain_id = 7\nnamespace = "/drone1"\nrouter_endpoint = "{router}"\n'
-                   '[fuser.mavlink_out]\nrate_hz = 5\ncomponent_id = 191\n')
+                   '[fuser.mavlink_out]\nrate_hz = 5\ncomponent_id = 191\n'
+                   '[fuser.extrapolation]\nevery_imu_sample = false\n')  # one estimate per tick: the counts below are the ticks'
+
     udp = free_port(socket.SOCK_DGRAM)
     gcs = mavutil.mavlink_connection(f"udpin:127.0.0.1:{udp}", dialect="common")
     r = _session("router", listen=[router])
