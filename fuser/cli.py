@@ -151,7 +151,7 @@ def _config_file(p: argparse.ArgumentParser) -> None:
 def _fusion_options(p: argparse.ArgumentParser) -> None:
     """What the fusion loop and model read: sim, run, replay."""
     g = p.add_argument_group("fusion")
-    g.add_argument("--rate", type=float, dest="rate_hz", metavar="HZ", help="estimates per second (default: 100)")
+    g.add_argument("--rate", type=float, dest="rate_hz", metavar="HZ", help="filter ticks per second (default: 100); between ticks an estimate at every IMU sample")
     g.add_argument("--no-mag", action="store_true", help="6-D fusion: ignore magnetometers")
     g.add_argument("--no-attitude", action="store_true", help="never fuse the autopilot's attitude messages (by default they "
                    "are fused while the IMU arrives too slowly to carry the attitude: [fuser.attitude] mode)")

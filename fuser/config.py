@@ -454,7 +454,8 @@ class ExtrapolationSettings(Settings):
     every_imu_sample: bool = True
     """Publish an estimate at every sample of the reference IMU too, not only at the ticks (PX4 EKF2's output
     predictor, :mod:`fuser.model.output`): the tick's state turned by the gyro through the samples since, each
-    stamped at its arrival; the tick's own estimate then at its due time. The filter still runs at ``rate_hz``."""
+    stamped at its arrival; the tick's own estimate then at its due time, and ``to`` does not apply. The filter
+    still runs at ``rate_hz``. false: one estimate per tick, carried as ``to`` says."""
 
 
 @dataclass(frozen=True)
@@ -538,7 +539,8 @@ class FuserConfig(Settings):
     vehicle: str = "sim"
     """Name used in the zenoh key expressions ``bingham_fuser/<vehicle>/...``."""
     rate_hz: Annotated[float, Range(gt=0, unit="Hz")] = 100.0
-    """Estimates per second (one per tick)."""
+    """Filter ticks per second, each with its estimate (between them the output predictor's at every IMU sample,
+    ``[fuser.extrapolation] every_imu_sample``)."""
     latency_ms: Annotated[float, Range(ge=0, unit="ms")] = 5.0
     """How long a tick waits at least after its due time for samples still in flight (``[fuser.latency]``
     waits longer on links whose latency varies)."""

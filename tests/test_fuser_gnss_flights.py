@@ -45,8 +45,9 @@ TILT_BOUND_DEG = {"fixedwing": 2.0}
 
 def _fly(flight, config: FuserConfig, after_s: float = 5.0, counters: dict | None = None, watch=None):
     """The flight's MAVLink bytes through the decoder and the loop, received 1 ms after sending; the errors after
-    ``after_s`` and the credible level of the truth at each of those estimates (the loop's counters into ``counters``;
-    ``watch(loop, estimate)`` called for each estimate as the advance that made it returns)."""
+    ``after_s`` and the credible level of the truth at each of those estimates, the ticks' and the output
+    predictor's (the loop's counters into ``counters``; ``watch(loop, estimate)`` called for each tick's estimate as
+    the advance that made it returns)."""
     loop = FusionLoop(config)
     estimates = []
     for t, _, samples in sim_ticks(flight):
@@ -55,7 +56,7 @@ def _fly(flight, config: FuserConfig, after_s: float = 5.0, counters: dict | Non
             if watch is not None:
                 watch(loop, e)
         for s in samples:
-            loop.push(s, t + 1_000_000)
+            estimates += loop.push(s, t + 1_000_000)  # between ticks, the output predictor's at every IMU sample
     estimates += loop.flush()
     est = [e for e in estimates if e.sensor_t_ns is not None]
     err = attitude_errors(np.array([e.sensor_t_ns for e in est]), np.array([e.q_wxyz for e in est]),

@@ -24,8 +24,15 @@ the hold's end, or with no rate at all, the uncertainty grows at
 in a gap.
 
 How far ahead (``extrapolation.to``): ``"published"``, the instant the loop
-publishes the estimate (``latency_ms`` after the tick); ``"tick"``, not at
-all (the state at the tick, as it was before).
+publishes the estimate (``latency_ms`` after the tick); ``"hold_midpoint"``,
+half a period further, the middle of the interval a consumer holds it;
+``"tick"``, not at all (the state at the tick, as it was before).
+
+With the output predictor (``extrapolation.every_imu_sample``, the default)
+the loop takes this lead back and turns the state by the gyro's samples
+themselves (:mod:`fuser.model.output`); the lead's widening stays, and a
+tick without a usable rate (no gyro, a saturated sample) is published as
+this module carried it.
 """
 
 from __future__ import annotations
