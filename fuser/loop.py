@@ -299,7 +299,8 @@ class FusionLoop:
             # stamped when due, or with the last prediction's stamp if a sample received after that went first
             stamp, published = max(tick_ns + self._wait_ns, self._last_stamp_ns), result.published
             state = self.model.state
-            self._output = started(result.published, result.lead_rotation, state.gyro.track, state.bias.estimate_rad_s)
+            self._output = None if result.imu_fault else started(result.published, result.lead_rotation, state.gyro.track,
+                                                                 state.bias.estimate_rad_s)
             for placed, _, sample in self._pending:
                 if self._output is not None and isinstance(sample, ImuSample) and sample.source == self.reference_imu:
                     self._output = advanced(self.config.gyro, self._output, sample.gyro_rad_s, placed)

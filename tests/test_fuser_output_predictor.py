@@ -184,3 +184,25 @@ def test_a_late_tick_is_never_stamped_before_the_prediction_it_follows():
     assert late == [due + 3 * MS] and len(ticked) == 1 and not ticked[0].predicted
     assert ticked[0].t_ns == due + 3 * MS  # not its due time, which lies before the prediction's
     assert stamps == sorted(stamps) and stamps[-1] < late[0]
+
+
+def test_while_an_imu_is_kept_out_nothing_is_predicted_between_ticks():
+    """Two IMUs; from 1.5 s the reference one reads random rates (a failing gyro, the rougher of the pair): the
+    check keeps its samples out of the ticks, and since between ticks it is not known which IMU is wrong, the
+    predictor stays silent while the check has kept something out; once it has stopped, it predicts again."""
+    rng = np.random.default_rng(4)
+    a, b = SourceId("mavlink", 1, 1, 0), SourceId("mavlink", 1, 1, 1)
+    inputs = []
+    for i in range(1200):  # 3 s at 400 Hz, both IMUs sampling together, received 1 ms later
+        t = round(i * 2.5e6) + MS
+        rogue = 1.5 <= i / 400 < 2.0
+        gyro_a = tuple(rng.normal(0.0, 3.0, 3)) if rogue else (0.0, 0.0, 0.5)
+        inputs += [(ImuSample(t, gyro_a, (0.0, 0.0, -9.80665), None, a), t + MS),
+                   (ImuSample(t, (0.0, 0.0, 0.5), (0.0, 0.0, -9.80665), None, b), t + MS)]
+    out = _run(FuserConfig(), inputs)
+    rel = lambda e: (e.sensor_t_ns - MS) * 1e-9  # noqa: E731  seconds of the flight
+    kept_out = [e for e, _ in out if e.counters.get("imu_disagree", 0) > 0]
+    assert kept_out, "the check kept the rogue IMU out"
+    assert not [e for e, _ in out if e.predicted and 1.55 <= rel(e) < 2.0]
+    assert [e for e, _ in out if not e.predicted and 1.55 <= rel(e) < 2.0]  # the ticks go on
+    assert len([e for e, _ in out if e.predicted and rel(e) >= 2.4]) > 100  # and after it, the predictions

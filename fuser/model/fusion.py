@@ -258,7 +258,7 @@ class FusionModel:
         if events:
             self.counters.update(events)
         return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters), self._ahead_ns,
-                          ahead.rotation)
+                          ahead.rotation, imu_fault)
 
     def _mag_in_state_body(self, tick: TickInput, imu: list[ImuSample], lags: np.ndarray, body_rate: np.ndarray | None) -> np.ndarray | None:
         """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body

@@ -24,7 +24,9 @@ the concentrations stay the tick's, whose lead variance already covers half a
 tick of held rate; the rate's random walk over one tick period more (``s^2
 h^3 / 3``, 1e-7 rad^2 at 15 ms) is left out. A gap longer than
 ``gyro.max_interval_s`` or a saturated sample ends the prediction until the
-next tick, as does a tick without a gyro track. The filter's state is never
+next tick, as does a tick without a gyro track, or one while the IMU check
+keeps an IMU out (:mod:`fuser.model.imu_check`: between ticks it is not known
+which IMU is wrong). The filter's state is never
 touched: the next tick starts from its own posterior, not from a prediction.
 """
 

@@ -68,6 +68,9 @@ class TickResult:
     lead_rotation: np.ndarray | None = None
     """The body rotation ``published`` was carried by over the lead (None: not turned); the output predictor
     (:mod:`fuser.model.output`) takes it back."""
+    imu_fault: bool = False
+    """An IMU was kept out within ``imu_check.compare_within_s``: which IMU is wrong is not known between ticks, so
+    the output predictor does not turn this state by the reference IMU."""
 
     @property
     def q_wxyz(self) -> np.ndarray:
