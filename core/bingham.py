@@ -184,12 +184,7 @@ class Bingham:
 
     @property
     def mode(self) -> NDArray[np.float64]:
-        """Most likely attitude (w, x, y, z), sign chosen so that w >= 0 (a new array, the caller's to change)."""
-        return self._mode.copy()
-
-    @cached_property
-    def _mode(self) -> NDArray[np.float64]:
-        """:attr:`mode`, computed once (a tick asks one state for it several times)."""
+        """Most likely attitude (w, x, y, z), sign chosen so that w >= 0."""
         m = self._M[:, -1]
         return -m if m[0] < 0 else m.copy()
 
