@@ -314,7 +314,8 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     if heading is not None and heading.exponent is not None and heading.diagnostic.sigma_deg is not None:
         heading_variance = max(math.radians(prior_doubt_deg) ** 2 - tilt_variance, 0.0)
         heading_gain = reading_gain(heading_variance, math.radians(heading.diagnostic.sigma_deg))
-    state = low_pass(state, predicted.mode, tilt_tau_s, interval_s, aided, tilt_gain, heading_gain)
+    predicted_q = predicted.mode
+    state = low_pass(state, predicted_q, tilt_tau_s, interval_s, aided, tilt_gain, heading_gain)
     params = config.bias
     tilt_trusted = tilt is not None and tilt.trusted
     if not tilt_trusted:
@@ -323,7 +324,7 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
         if rate_rad_s > params.learn_max_rate_rad_s or not may_learn(params, at_rest, prior_doubt_deg):
             return state
         # the correction spans the ticks since the bias last learnt: in motion with GNSS, the aided readings' spacing
-        return integral_feedback(params, state, predicted.mode, posterior_q, velocity.interval_s if aided and velocity.moving else interval_s)
+        return integral_feedback(params, state, predicted_q, posterior_q, velocity.interval_s if aided and velocity.moving else interval_s)
     tilt_evidence = heading_evidence = None
     if (tilt is not None and tilt_gain is not None and tilt.diagnostic is not None and tilt.diagnostic.outcome == "fused"
             and may_learn(params, at_rest, math.degrees(math.sqrt(tilt_variance)))):
@@ -332,7 +333,7 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     if (heading is not None and heading_gain is not None and heading.diagnostic.outcome == "fused"
             and may_learn(params, at_rest, prior_doubt_deg)):
         heading_evidence = HeadingEvidence(heading_gain, heading_interval_s, math.radians(config.mag.error_deg), config.mag.correlation_s)
-    return learn_in_motion(params, state, predicted.mode, posterior_q, tilt_tau_s, tilt_evidence, heading_evidence, rate_rad_s,
+    return learn_in_motion(params, state, predicted_q, posterior_q, tilt_tau_s, tilt_evidence, heading_evidence, rate_rad_s,
                            config.gyro.scale_error_fraction)
 
 
