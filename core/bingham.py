@@ -12,6 +12,7 @@ constant take ``method="saddlepoint"`` (fast) or ``"exact"`` (accurate); see
 
 from __future__ import annotations
 
+import math
 from functools import cached_property
 
 import numpy as np
@@ -86,8 +87,13 @@ class Bingham:
         self._set(M, Z)
 
     def _set(self, M: NDArray, Z: NDArray) -> None:
-        if Z.flags.writeable or Z[-1] != 0.0:  # a read-only Z with Z[-1] = 0 is another Bingham's: shared as is
-            Z = Z - Z[-1]  # eq. (3): Bingham(M, Z) = Bingham(M, Z + cI)
+        """Take ``M`` and ``Z`` (new arrays, or another Bingham's read-only ones) as this distribution's, frozen, ``Z``
+        shifted to ``Z[-1] = 0`` (eq. (3): Bingham(M, Z) = Bingham(M, Z + cI))."""
+        last = float(Z[-1])
+        if Z.flags.writeable and last == 0.0 and math.copysign(1.0, last) > 0.0:
+            Z.setflags(write=False)  # already shifted (a fit holds z_n at +0, from which the shift would change no bit)
+        elif Z.flags.writeable or last != 0.0:  # a read-only Z with Z[-1] = 0 is another Bingham's: shared as is
+            Z = Z - Z[-1]
             Z.setflags(write=False)
         M.setflags(write=False)
         self._M = M

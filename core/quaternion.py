@@ -13,7 +13,7 @@ Distribution" (unscented paper), sec. II and eq. (4).
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import Literal, Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -89,20 +89,19 @@ def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     """Hamilton product ``p q`` (apply ``q`` first, then ``p``)."""
     p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
     if q.shape == (4,) and p.shape == (4,):  # one pair, as in a filter loop: plain floats
-        return _multiply_one(p.tolist(), q.tolist())
+        return np.array(_multiply_one(p.tolist(), q.tolist()))
     return (left_matrix(p) @ q[..., None])[..., 0]
 
 
-def _multiply_one(p: list[float], q: list[float]) -> NDArray[np.float64]:
+def _multiply_one(p: Sequence[float], q: Sequence[float]) -> tuple[float, float, float, float]:
+    """:func:`multiply` of one pair in plain floats."""
     pw, px, py, pz = p
     qw, qx, qy, qz = q
-    return np.array(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ]
+    return (
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
     )
 
 
@@ -223,16 +222,22 @@ def to_rotvec(q: ArrayLike) -> NDArray[np.float64]:
     """Rotation vector (angle in [0, pi] times axis) of ``q``; ``q`` and ``-q`` agree."""
     q = np.asarray(q, dtype=float)
     if q.shape == (4,):  # one rotation: plain floats
-        w, x, y, z = q.tolist() if q[0] >= 0 else (-q).tolist()
-        vec_norm = math.sqrt(x * x + y * y + z * z)
-        scale = 2.0 / w if vec_norm < 1e-8 else 2.0 * math.atan2(vec_norm, w) / vec_norm
-        return np.array([scale * x, scale * y, scale * z])
+        return np.array(_rotvec_one(*q.tolist()))
     q = np.where(q[..., :1] < 0, -q, q)
     vec_norm = np.linalg.norm(q[..., 1:], axis=-1, keepdims=True)
     angle = 2.0 * np.arctan2(vec_norm, q[..., :1])
     small = vec_norm < 1e-8
     scale = np.where(small, 2.0 / np.where(small, q[..., :1], 1.0), angle / np.where(small, 1.0, vec_norm))
     return scale * q[..., 1:]
+
+
+def _rotvec_one(w: float, x: float, y: float, z: float) -> tuple[float, float, float]:
+    """:func:`to_rotvec` of one quaternion in plain floats."""
+    if not w >= 0:
+        w, x, y, z = -w, -x, -y, -z
+    vec_norm = math.sqrt(x * x + y * y + z * z)
+    scale = 2.0 / w if vec_norm < 1e-8 else 2.0 * math.atan2(vec_norm, w) / vec_norm
+    return scale * x, scale * y, scale * z
 
 
 def power(q: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
@@ -244,6 +249,12 @@ def rotvec_between(q_from: ArrayLike, q_to: ArrayLike, frame: Literal["world", "
     """Rotation vector of the turn taking ``q_from`` to ``q_to``: in the world frame ``q_to (x) q_from^-1``
     (``q_to = exp(r) (x) q_from``), in the body frame ``q_from^-1 (x) q_to`` (``q_to = q_from (x) exp(r)``).
     A filter's correction of its prediction, for one."""
+    q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
+    if q_from.shape == q_to.shape == (4,):  # one pair, as in a filter loop: plain floats (the conjugate negates exactly)
+        w, x, y, z = q_from.tolist()
+        inverse_from = (w, -x, -y, -z)
+        turn = _multiply_one(q_to.tolist(), inverse_from) if frame == "world" else _multiply_one(inverse_from, q_to.tolist())
+        return np.array(_rotvec_one(*turn))
     turn = multiply(q_to, conjugate(q_from)) if frame == "world" else multiply(conjugate(q_from), q_to)
     return to_rotvec(turn)
 

@@ -28,10 +28,11 @@ def test_products_agree_with_numpy_to_rounding():
         assert vec3.norm(fa) == pytest.approx(float(np.linalg.norm(a)), rel=1e-15)
 
 
-def test_low_pass_step_rounds_as_numpy_does():
+def test_low_pass_step_and_difference_round_as_numpy_does():
     for _, a, b in CASES:
         k = float(RNG.uniform())
         assert np.array_equal(np.array(vec3.toward(vec3.floats(a), vec3.floats(b), k)), a + k * (b - a))
+        assert np.array_equal(np.array(vec3.sub(vec3.floats(a), vec3.floats(b))), a - b)
 
 
 def test_hand_worked_values():
@@ -41,5 +42,6 @@ def test_hand_worked_values():
     assert vec3.norm((3.0, 4.0, 12.0)) == 13.0
     assert vec3.dot((1.0, 2.0, 3.0), (4.0, -5.0, 6.0)) == 12.0
     assert vec3.toward((0.0, 0.0, 0.0), (2.0, 4.0, -8.0), 0.25) == (0.5, 1.0, -2.0)
+    assert vec3.sub((1.0, 2.0, 3.0), (4.0, -5.0, 6.5)) == (-3.0, 7.0, -3.5)
     assert vec3.angle_rad(1.0 + 1e-15) == 0.0 and vec3.angle_rad(-1.0 - 1e-15) == math.pi
     assert vec3.floats(np.array([1, 2, 3])) == (1.0, 2.0, 3.0) and vec3.floats([1, 2, 3]) == (1.0, 2.0, 3.0)

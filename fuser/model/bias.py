@@ -257,15 +257,17 @@ def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndar
     # innovation variance per row, no matrix inverse, in plain floats (3-vectors: numpy's per-call cost would dominate).
     estimate = state.estimate_rad_s.tolist()
     covariance = state.covariance_rad2_s2.tolist()
+    rotation_lp, rotated_lp = state.rotation_lp.tolist(), state.rotated_lp_rad_s.tolist()
     floor = min(params.floor_sigma_rad_s**2, state.variance_rad2_s2)
     for row, st, r, c in zip(rows, stage, noise, correction):
-        h = state.rotation_lp[st, row].tolist()
-        y = float(state.rotated_lp_rad_s[st, row]) - c
-        ph = [p0 * h[0] + p1 * h[1] + p2 * h[2] for p0, p1, p2 in covariance]  # P h^T
-        gain = [x / (h[0] * ph[0] + h[1] * ph[1] + h[2] * ph[2] + r) for x in ph]  # P h^T / (h P h^T + r)
-        innovation = y - (h[0] * estimate[0] + h[1] * estimate[1] + h[2] * estimate[2])
+        h0, h1, h2 = rotation_lp[st][row]
+        y = rotated_lp[st][row] - c
+        ph0, ph1, ph2 = [p0 * h0 + p1 * h1 + p2 * h2 for p0, p1, p2 in covariance]  # P h^T
+        innovation_variance = h0 * ph0 + h1 * ph1 + h2 * ph2 + r  # h P h^T + r
+        gain = (ph0 / innovation_variance, ph1 / innovation_variance, ph2 / innovation_variance)
+        innovation = y - (h0 * estimate[0] + h1 * estimate[1] + h2 * estimate[2])
         estimate = [e + k * innovation for e, k in zip(estimate, gain)]
-        covariance = [[p - k * x for p, x in zip(row_p, ph)] for row_p, k in zip(covariance, gain)]  # (I - k h) P
+        covariance = [[p0 - k * ph0, p1 - k * ph1, p2 - k * ph2] for (p0, p1, p2), k in zip(covariance, gain)]  # (I - k h) P
     learnt = [[0.5 * (covariance[i][j] + covariance[j][i]) for j in range(3)] for i in range(3)]
     mean = _mean_variance(learnt)
     if mean < floor:  # no surer than the floor (or than it was) from motion alone
@@ -312,7 +314,8 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     if heading is not None and heading.exponent is not None and heading.diagnostic.sigma_deg is not None:
         heading_variance = max(math.radians(prior_doubt_deg) ** 2 - tilt_variance, 0.0)
         heading_gain = reading_gain(heading_variance, math.radians(heading.diagnostic.sigma_deg))
-    state = low_pass(state, predicted.mode, tilt_tau_s, interval_s, aided, tilt_gain, heading_gain)
+    predicted_q = predicted.mode
+    state = low_pass(state, predicted_q, tilt_tau_s, interval_s, aided, tilt_gain, heading_gain)
     params = config.bias
     tilt_trusted = tilt is not None and tilt.trusted
     if not tilt_trusted:
@@ -321,7 +324,7 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
         if rate_rad_s > params.learn_max_rate_rad_s or not may_learn(params, at_rest, prior_doubt_deg):
             return state
         # the correction spans the ticks since the bias last learnt: in motion with GNSS, the aided readings' spacing
-        return integral_feedback(params, state, predicted.mode, posterior_q, velocity.interval_s if aided and velocity.moving else interval_s)
+        return integral_feedback(params, state, predicted_q, posterior_q, velocity.interval_s if aided and velocity.moving else interval_s)
     tilt_evidence = heading_evidence = None
     if (tilt is not None and tilt_gain is not None and tilt.diagnostic is not None and tilt.diagnostic.outcome == "fused"
             and may_learn(params, at_rest, math.degrees(math.sqrt(tilt_variance)))):
@@ -330,7 +333,7 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     if (heading is not None and heading_gain is not None and heading.diagnostic.outcome == "fused"
             and may_learn(params, at_rest, prior_doubt_deg)):
         heading_evidence = HeadingEvidence(heading_gain, heading_interval_s, math.radians(config.mag.error_deg), config.mag.correlation_s)
-    return learn_in_motion(params, state, predicted.mode, posterior_q, tilt_tau_s, tilt_evidence, heading_evidence, rate_rad_s,
+    return learn_in_motion(params, state, predicted_q, posterior_q, tilt_tau_s, tilt_evidence, heading_evidence, rate_rad_s,
                            config.gyro.scale_error_fraction)
 
 

@@ -92,4 +92,4 @@ def lead(gyro: GyroSettings, track: GyroTrack | None, bias_rad_s: np.ndarray, ti
     (x, y, z), (bx, by, bz) = track.last_rate_rad_s, bias_rad_s.tolist()  # 3-vectors in plain floats
     x, y, z = x - bx, y - by, z - bz
     angle = math.sqrt(x * x + y * y + z * z) * held_s
-    return Lead(quat.from_rotvec(np.array([x * held_s, y * held_s, z * held_s])) if angle > 0.0 else None, variance)
+    return Lead(quat.from_rotvec((x * held_s, y * held_s, z * held_s)) if angle > 0.0 else None, variance)

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from core.observations import heading_exponent, vector_exponent
+from drivers.samples import Vec3
 from fuser.config import BiasSettings, MagSettings, UpdateSettings
 from fuser.model import vec3
 from fuser.model.diagnostics import UpdateDiagnostic
@@ -48,15 +49,15 @@ class FieldReference:
     """Coefficients of the reference field, computed once from ``mag.field_ned_gauss``."""
 
     norm_gauss: float
-    unit_ned: np.ndarray
-    """The field's direction (NED)."""
+    unit_ned: Vec3
+    """The field's direction (NED), in plain floats (:mod:`fuser.model.vec3`)."""
     heading_rad: float
 
     @classmethod
     def of(cls, field_ned_gauss: tuple[float, float, float]) -> FieldReference:
         field = np.asarray(field_ned_gauss, dtype=float)
         norm = float(np.linalg.norm(field))
-        return cls(norm, field / norm, math.atan2(field[1], field[0]))
+        return cls(norm, vec3.floats(field / norm), math.atan2(field[1], field[0]))
 
 @dataclass(frozen=True, slots=True)
 class HeadingReading:
@@ -101,7 +102,7 @@ def update_heading(params: MagSettings, updates: UpdateSettings, reference: Fiel
     # field's to the world direction that was measured as (down, or gravity minus the GNSS acceleration): neither
     # depends on the estimate, so that a wrong estimate cannot lock the magnetometer out
     measured = vec3.angle_rad(vec3.dot(mag, vec3.floats(gravity.measured_body)) / norm)
-    expected = vec3.angle_rad(vec3.dot(vec3.floats(reference.unit_ned), vec3.floats(gravity.measured_world)))
+    expected = vec3.angle_rad(vec3.dot(reference.unit_ned, vec3.floats(gravity.measured_world)))
     if abs(math.degrees(measured - expected)) > params.dip_gate_deg:
         return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "dip"))
     north, east, _ = vec3.rotation_rows(current_q)  # body -> NED: the field's north and east in the world

@@ -29,12 +29,11 @@ def detect_rest(params: RestSettings, state: RestState, raw_rate_rad_s: np.ndarr
     gyro_lp = gyro if state.gyro_lp_rad_s is None else state.gyro_lp_rad_s.tolist()
     accel_lp = accel if state.accel_lp_m_s2 is None else state.accel_lp_m_s2.tolist()
     a = min(1.0, dt_s / params.filter_s)
-    gyro_lp = [lp + a * (x - lp) for lp, x in zip(gyro_lp, gyro)]
-    accel_lp = [lp + a * (x - lp) for lp, x in zip(accel_lp, accel)]
+    gyro_lp, accel_lp = vec3.toward(gyro_lp, gyro, a), vec3.toward(accel_lp, accel, a)
     still = (
-        vec3.norm([x - lp for x, lp in zip(gyro, gyro_lp)]) < params.gyro_rad_s
+        vec3.norm(vec3.sub(gyro, gyro_lp)) < params.gyro_rad_s
         and vec3.norm(gyro_lp) < params.gyro_rad_s
-        and vec3.norm([x - lp for x, lp in zip(accel, accel_lp)]) < params.accel_m_s2
+        and vec3.norm(vec3.sub(accel, accel_lp)) < params.accel_m_s2
     )
     still_s = state.still_s + dt_s if still else 0.0
     return RestState(np.array(gyro_lp), np.array(accel_lp), still_s, still_s >= params.min_s)

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike
 
 from drivers.samples import Vec3
 
-__all__ = ["Rows", "angle_rad", "dot", "floats", "mat_vec", "norm", "rotation_rows", "toward", "vec_mat"]
+__all__ = ["Rows", "angle_rad", "dot", "floats", "mat_vec", "norm", "rotation_rows", "sub", "toward", "vec_mat"]
 
 Rows = Sequence[Sequence[float]]
 """A 3x3 matrix as three rows of three floats."""
@@ -62,6 +62,11 @@ def vec_mat(v: Vec3, m: Rows) -> Vec3:
     x, y, z = v
     r0, r1, r2 = m
     return x * r0[0] + y * r1[0] + z * r2[0], x * r0[1] + y * r1[1] + z * r2[1], x * r0[2] + y * r1[2] + z * r2[2]
+
+
+def sub(a: Vec3, b: Vec3) -> Vec3:
+    """``a - b``."""
+    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
 
 
 def toward(a: Vec3, b: Vec3, k: float) -> Vec3:
