@@ -207,15 +207,25 @@ def from_rotvec(rotvec: ArrayLike) -> NDArray[np.float64]:
     """
     rotvec = np.asarray(rotvec, dtype=float)
     if rotvec.shape == (3,):  # one rotation: plain floats
-        x, y, z = rotvec.tolist()
-        angle = math.sqrt(x * x + y * y + z * z)
-        sinc = 0.5 - angle * angle / 48.0 if angle < 1e-4 else math.sin(0.5 * angle) / angle
-        return np.array([math.cos(0.5 * angle), sinc * x, sinc * y, sinc * z])
+        return np.array(_from_rotvec_one(*rotvec.tolist()))
     angle = np.linalg.norm(rotvec, axis=-1, keepdims=True)
     half = 0.5 * angle
     small = angle < 1e-4
     sinc = np.where(small, 0.5 - angle * angle / 48.0, np.sin(half) / np.where(small, 1.0, angle))
     return np.concatenate([np.cos(half), sinc * rotvec], axis=-1)
+
+
+def _from_rotvec_one(x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """:func:`from_rotvec` of one rotation vector in plain floats."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    sinc = 0.5 - angle * angle / 48.0 if angle < 1e-4 else math.sin(0.5 * angle) / angle
+    return math.cos(0.5 * angle), sinc * x, sinc * y, sinc * z
+
+
+def turned_by(q: Sequence[float], rotvec: Sequence[float]) -> tuple[float, float, float, float]:
+    """``q (x) exp(rotvec)`` for one quaternion and a body-frame rotation vector, in plain floats: the same
+    arithmetic as ``multiply(q, from_rotvec(rotvec))`` without an array per call."""
+    return _multiply_one(q, _from_rotvec_one(*rotvec))
 
 
 def to_rotvec(q: ArrayLike) -> NDArray[np.float64]:

@@ -327,8 +327,14 @@ class McapRecorder:
 
     def write_estimate(self, est: Estimate) -> None:
         """An estimate on ``/estimate`` (full), ``/pose`` and ``/tf`` (Foxglove), and its tick's update diagnostics
-        on ``/diagnostics`` (every tick that ran an update), at its tick time."""
+        on ``/diagnostics`` (every tick that ran an update), at its time. The output predictor's estimates between
+        ticks go on ``/estimate`` alone: the Foxglove views follow the ticks (100 Hz by default), which a viewer
+        needs, not every IMU sample, which would triple what a replay writes."""
         full = self._encode("/estimate", est.to_dict())
+        if est.predicted:
+            if full is not None:
+                self.write_message("/estimate", est.t_ns, est.t_ns, full)
+            return
         pose = self._encode("/pose", pose_in_frame(est.t_ns, est.q_wxyz))
         tf = self._encode("/tf", frame_transforms(est.t_ns, BODY_FRAME, est.q_wxyz))
         # one estimate, one verdict: its Foxglove views and diagnostics are written only with the estimate itself

@@ -206,3 +206,17 @@ def test_while_an_imu_is_kept_out_nothing_is_predicted_between_ticks():
     assert not [e for e, _ in out if e.predicted and 1.55 <= rel(e) < 2.0]
     assert [e for e, _ in out if not e.predicted and 1.55 <= rel(e) < 2.0]  # the ticks go on
     assert len([e for e, _ in out if e.predicted and rel(e) >= 2.4]) > 100  # and after it, the predictions
+
+
+def test_a_prediction_is_recorded_on_estimate_alone(tmp_path):
+    from fuser.record import McapRecorder
+
+    inputs = _spin_inputs(1.0, 1.0)
+    with McapRecorder(tmp_path / "x.mcap") as rec:
+        out = _run(FuserConfig(), inputs)
+        for e, _ in out:
+            rec.write_estimate(e)
+    log = read_log(tmp_path / "x.mcap")
+    ticks = [e for e, _ in out if not e.predicted]
+    assert len(log.topic("/estimate")) == len(out) > len(ticks) > 50
+    assert [t for t, _ in log.topic("/pose")] == [e.t_ns for e in ticks]

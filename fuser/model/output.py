@@ -51,7 +51,7 @@ class OutputState:
 
     base: Bingham
     """The tick's published distribution at the tick (its lead taken back)."""
-    turned_wxyz: np.ndarray
+    turned_wxyz: tuple[float, float, float, float]
     """Body rotation from the tick to the last sample integrated (bias removed)."""
     last_ns: int
     """The last gyro sample integrated (loop timeline)."""
@@ -70,14 +70,14 @@ def started(published: Bingham, lead_rotation: np.ndarray | None, track: GyroTra
     if track is None or track.saturated:
         return None
     base = published if lead_rotation is None else published.rotate_right(quat.conjugate(lead_rotation))
-    return OutputState(base, np.array([1.0, 0.0, 0.0, 0.0]), track.last_ns, track.last_rate_rad_s, track.covered_ns, track.held_rad,
+    return OutputState(base, (1.0, 0.0, 0.0, 0.0), track.last_ns, track.last_rate_rad_s, track.covered_ns, track.held_rad,
                        tuple(bias_rad_s.tolist()))  # type: ignore[arg-type]
 
 
 def advanced(params: GyroSettings, state: OutputState, rate_rad_s: Vec3, placed_ns: int) -> OutputState | None:
     """``state`` turned through one more sample of the reference IMU (``placed_ns`` on the loop's timeline); None
     after a gap or a saturated sample (the prediction waits for the next tick); unchanged for a sample not after
-    the rotation's end (out of order)."""
+    the rotation's end (out of order). In plain floats: it runs once per IMU sample."""
     if placed_ns <= state.covered_ns:
         return state
     limit = params.saturation_fraction * params.range_rad_s
@@ -85,17 +85,14 @@ def advanced(params: GyroSettings, state: OutputState, rate_rad_s: Vec3, placed_
     if h_ns > round(params.max_interval_s * 1e9) or max(map(abs, rate_rad_s)) >= limit:
         return None
     half, covered = 0.5 * h_ns * 1e-9, (placed_ns - state.covered_ns) * 1e-9
-    rotvec = np.array([half * (r + p) - held - b * covered for r, p, held, b in
-                       zip(rate_rad_s, state.last_rate_rad_s, state.held_rad, state.bias_rad_s)])
-    return OutputState(state.base, quat.multiply(state.turned_wxyz, quat.from_rotvec(rotvec)), placed_ns, rate_rad_s, placed_ns,
-                       (0.0, 0.0, 0.0), state.bias_rad_s)
+    rotvec = [half * (r + p) - held - b * covered for r, p, held, b in zip(rate_rad_s, state.last_rate_rad_s, state.held_rad, state.bias_rad_s)]
+    return OutputState(state.base, quat.turned_by(state.turned_wxyz, rotvec), placed_ns, rate_rad_s, placed_ns, (0.0, 0.0, 0.0),
+                       state.bias_rad_s)
 
 
 def at(state: OutputState, stamp_ns: int, imu_delay_ns: int) -> Bingham:
     """The predicted distribution at ``stamp_ns``: the last sample's rate (bias removed) held from the instant it
     describes, ``imu_delay_ns`` before it, to the stamp."""
     carry_s = max(0, stamp_ns - state.covered_ns + imu_delay_ns) * 1e-9
-    rotvec = np.array([(r - b) * carry_s for r, b in zip(state.last_rate_rad_s, state.bias_rad_s)])
-    turned = state.turned_wxyz if not rotvec.any() else quat.multiply(state.turned_wxyz, quat.from_rotvec(rotvec))
-    return state.base.rotate_right(turned)
-
+    turned = quat.turned_by(state.turned_wxyz, [(r - b) * carry_s for r, b in zip(state.last_rate_rad_s, state.bias_rad_s)])
+    return state.base.rotate_right(np.array(turned))
