@@ -225,11 +225,12 @@ def subscribe(
 
 
 def format_estimate(est: Estimate) -> str:
-    """One human line: tick time, roll/pitch/yaw and uncertainty in degrees."""
+    """One human line: its time, roll/pitch/yaw and uncertainty in degrees, and which kind it is (a tick's, or the
+    output predictor's between ticks)."""
     roll, pitch, yaw = est.euler_deg
     return (
         f"t={est.t_ns / 1e9:12.6f} s  roll={roll:8.3f}  pitch={pitch:8.3f}  yaw={yaw:8.3f} deg"
-        f"  +/-{est.uncertainty_deg:.3f} deg"
+        f"  +/-{est.uncertainty_deg:.3f} deg  {'predicted' if est.predicted else 'tick'}"
     )
 
 

@@ -220,3 +220,11 @@ def test_a_prediction_is_recorded_on_estimate_alone(tmp_path):
     ticks = [e for e, _ in out if not e.predicted]
     assert len(log.topic("/estimate")) == len(out) > len(ticks) > 50
     assert [t for t, _ in log.topic("/pose")] == [e.t_ns for e in ticks]
+
+
+def test_listen_says_which_kind_each_estimate_is():
+    from fuser.publish import format_estimate
+
+    out = _run(FuserConfig(), _spin_inputs(1.0, 1.0))
+    kinds = {e.predicted: format_estimate(e).rsplit(" ", 1)[1] for e, _ in out}
+    assert kinds == {False: "tick", True: "predicted"}
