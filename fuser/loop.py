@@ -255,11 +255,16 @@ class FusionLoop:
         self._pending.append((placed, self._seq, sample))
         self._seq += 1
         self.counters["samples"] += 1
-        if self._output is not None and isinstance(sample, ImuSample) and sample.source == self.reference_imu:
-            self._output = advanced(self.config.gyro, self._output, sample.gyro_rad_s, placed)
-            if self._output is not None and self._output.last_ns == placed:
-                return [self._estimate(receive_ns, at(self._output, receive_ns, self._imu_delay_ns), self._last_result, (), predicted=True)]
+        if self._predicted_through(sample, placed) and self._last_result is not None:
+            return [self._estimate(receive_ns, at(self._output, receive_ns, self._imu_delay_ns), self._last_result, (), predicted=True)]
         return []
+
+    def _predicted_through(self, sample: Sample, placed_ns: int) -> bool:
+        """Turn the output predictor through ``sample`` if it is the reference IMU's; True if it now ends there."""
+        if self._output is None or not isinstance(sample, ImuSample) or sample.source != self.reference_imu:
+            return False
+        self._output = advanced(self.config.gyro, self._output, sample.gyro_rad_s, placed_ns)
+        return self._output is not None and self._output.last_ns == placed_ns
 
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
@@ -302,8 +307,7 @@ class FusionLoop:
             self._output = None if result.imu_fault else started(result.published, result.lead_rotation, state.gyro.track,
                                                                  state.bias.estimate_rad_s)
             for placed, _, sample in self._pending:
-                if self._output is not None and isinstance(sample, ImuSample) and sample.source == self.reference_imu:
-                    self._output = advanced(self.config.gyro, self._output, sample.gyro_rad_s, placed)
+                self._predicted_through(sample, placed)
             if self._output is not None:
                 published = at(self._output, stamp, self._imu_delay_ns)
         else:
@@ -313,10 +317,8 @@ class FusionLoop:
             self._latest_diagnostics[d["update"]] = {"t_ns": tick_ns, **d}
         return estimate
 
-    def _estimate(self, stamp_ns: int, published: Bingham, result: TickResult | None, diagnostics: tuple,
-                  predicted: bool = False) -> Estimate:
+    def _estimate(self, stamp_ns: int, published: Bingham, result: TickResult, diagnostics: tuple, predicted: bool = False) -> Estimate:
         """The wire estimate of ``published`` (the last tick's ``result``, or turned from it) stamped ``stamp_ns``."""
-        assert result is not None
         offset = None if self.reference_imu is None else self.timeline.offsets[(self.reference_imu, ImuSample)]
         turned = TickResult(published, result.uncertainty_deg, diagnostics, result.counters)  # a right rotation keeps the spread
         self._last_stamp_ns = stamp_ns
