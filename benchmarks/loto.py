@@ -125,30 +125,9 @@ def run_ticks(trial: Trial, config: FuserConfig) -> Ticks:
         return result
 
     model.step = step_noting_rate  # type: ignore[method-assign]
-    loop, push = pipeline.loop, pipeline.loop.push
-    predicted: dict[int, float] = {}
-
-    def push_noting(sample, receive_ns):  # the output predictor's estimates (extrapolation.every_imu_sample): the last tick's rate
-        estimates = push(sample, receive_ns)
-        for est in estimates:
-            predicted[id(est)] = rates[-1]
-        return estimates
-
-    loop.push = push_noting  # type: ignore[method-assign]
     now = [0]
     out: list[tuple] = []
-    estimate_rates: list[float] = []
-    ticks_emitted = [0]
-
-    def emitted(est):  # each estimate with its tick's rate state: a tick's own (in order), a prediction's
-        if id(est) in predicted:
-            estimate_rates.append(predicted.pop(id(est)))
-        else:
-            estimate_rates.append(rates[ticks_emitted[0]])
-            ticks_emitted[0] += 1
-        out.append((est, now[0]))
-
-    pipeline.outputs.append(emitted)
+    pipeline.outputs.append(lambda est: out.append((est, now[0])))
     start = time.perf_counter()
     for sample, receive_ns in trial.inputs:
         now[0] = receive_ns
@@ -161,8 +140,9 @@ def run_ticks(trial: Trial, config: FuserConfig) -> Ticks:
     offset = np.array([e.t_ns - e.sensor_t_ns for e in est], dtype=np.int64)  # loop timeline -> sensor clock
     emitted = np.array([out[i][1] for i in keep], dtype=np.int64)
     emitted = np.where(emitted == np.iinfo(np.int64).max, emitted, emitted - offset)
+    ticks = np.array([e.counters["ticks"] for e in est])  # the tick that made each estimate (a prediction: its tick's count)
     return Ticks(np.array([e.sensor_t_ns for e in est], dtype=np.int64), emitted, np.array([e.q_wxyz for e in est]),
-                 np.array([e.M for e in est]), np.array([e.Z for e in est]), np.array(estimate_rates)[keep], seconds)
+                 np.array([e.M for e in est]), np.array([e.Z for e in est]), np.array(rates)[ticks - 1], seconds)
 
 
 @dataclass

@@ -331,18 +331,15 @@ class McapRecorder:
         ticks go on ``/estimate`` alone: the Foxglove views follow the ticks (100 Hz by default), which a viewer
         needs, not every IMU sample, which would triple what a replay writes."""
         full = self._encode("/estimate", est.to_dict())
-        if est.predicted:
-            if full is not None:
-                self.write_message("/estimate", est.t_ns, est.t_ns, full)
-            return
-        pose = self._encode("/pose", pose_in_frame(est.t_ns, est.q_wxyz))
-        tf = self._encode("/tf", frame_transforms(est.t_ns, BODY_FRAME, est.q_wxyz))
+        views = () if est.predicted else (("/pose", self._encode("/pose", pose_in_frame(est.t_ns, est.q_wxyz))),
+                                          ("/tf", self._encode("/tf", frame_transforms(est.t_ns, BODY_FRAME, est.q_wxyz))))
         # one estimate, one verdict: its Foxglove views and diagnostics are written only with the estimate itself
-        if full is not None and pose is not None and tf is not None and self.write_message("/estimate", est.t_ns, est.t_ns, full):
-            self.write_message("/pose", est.t_ns, est.t_ns, pose)
-            self.write_message("/tf", est.t_ns, est.t_ns, tf)
-            if est.diagnostics:
-                self.write_message("/diagnostics", est.t_ns, est.t_ns, est.diagnostics_json())
+        if full is None or any(data is None for _, data in views) or not self.write_message("/estimate", est.t_ns, est.t_ns, full):
+            return
+        for topic, data in views:
+            self.write_message(topic, est.t_ns, est.t_ns, data)
+        if est.diagnostics:
+            self.write_message("/diagnostics", est.t_ns, est.t_ns, est.diagnostics_json())
 
     def write_truth(self, t_ns: int, q_wxyz: Quat, log_time_ns: int | None = None) -> None:
         """The true attitude (simulator, imported logs) on ``/truth/pose``, and its own body frame on ``/tf``.

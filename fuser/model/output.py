@@ -40,6 +40,7 @@ from core import quaternion as quat
 from core.bingham import Bingham
 from drivers.samples import Vec3
 from fuser.config import GyroSettings
+from fuser.model.propagation import saturated
 from fuser.model.state import GyroTrack
 
 __all__ = ["OutputState", "advanced", "at", "started"]
@@ -80,9 +81,8 @@ def advanced(params: GyroSettings, state: OutputState, rate_rad_s: Vec3, placed_
     the rotation's end (out of order). In plain floats: it runs once per IMU sample."""
     if placed_ns <= state.covered_ns:
         return state
-    limit = params.saturation_fraction * params.range_rad_s
     h_ns = placed_ns - state.last_ns
-    if h_ns > round(params.max_interval_s * 1e9) or max(map(abs, rate_rad_s)) >= limit:
+    if h_ns > round(params.max_interval_s * 1e9) or saturated(params, rate_rad_s):
         return None
     half, covered = 0.5 * h_ns * 1e-9, (placed_ns - state.covered_ns) * 1e-9
     rotvec = [half * (r + p) - held - b * covered for r, p, held, b in zip(rate_rad_s, state.last_rate_rad_s, state.held_rad, state.bias_rad_s)]

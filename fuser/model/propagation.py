@@ -52,7 +52,7 @@ from drivers.samples import ImuSample, Vec3
 from fuser.config import BiasSettings, GyroSettings
 from fuser.model.state import BiasState, GyroTrack
 
-__all__ = ["Motion", "Prediction", "integrate_gyro", "predict", "process_noise", "rotation_noise"]
+__all__ = ["Motion", "Prediction", "integrate_gyro", "predict", "process_noise", "rotation_noise", "saturated"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,7 +83,8 @@ class Motion:
         return self.raw_rotation_rad / self.known_s if self.known_s > 0.0 else None
 
 
-def _saturated(params: GyroSettings, rate: Vec3) -> bool:
+def saturated(params: GyroSettings, rate: Vec3) -> bool:
+    """A gyro sample at or beyond ``saturation_fraction`` of the range on any axis (module docstring)."""
     limit = params.saturation_fraction * params.range_rad_s
     return abs(rate[0]) >= limit or abs(rate[1]) >= limit or abs(rate[2]) >= limit
 
@@ -92,13 +93,13 @@ def _merged(params: GyroSettings, samples: Sequence[ImuSample], placed_ns: Seque
     """The tick's gyro samples as one stream in time order, saturated or not; samples of several IMUs at one
     instant averaged (the unsaturated ones, if any)."""
     if all(a < b for a, b in zip(placed_ns, placed_ns[1:])):  # the common case, one IMU: every sample its own instant, in order
-        return [(t, s.gyro_rad_s, _saturated(params, s.gyro_rad_s)) for s, t in zip(samples, placed_ns)]
+        return [(t, s.gyro_rad_s, saturated(params, s.gyro_rad_s)) for s, t in zip(samples, placed_ns)]
     by_time: dict[int, list[Vec3]] = {}
     for s, t in zip(samples, placed_ns):
         by_time.setdefault(t, []).append(s.gyro_rad_s)
     out = []
     for t in sorted(by_time):
-        rates = [r for r in by_time[t] if not _saturated(params, r)]
+        rates = [r for r in by_time[t] if not saturated(params, r)]
         if not rates:
             out.append((t, by_time[t][0], True))
         else:
