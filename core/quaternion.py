@@ -74,8 +74,9 @@ def as_quaternion(q: ArrayLike, *, unit: bool = True) -> NDArray[np.float64]:
 def normalize(q: ArrayLike) -> NDArray[np.float64]:
     """Scale ``q`` to unit length; raises ``ValueError`` for zero or non-finite input."""
     arr = as_quaternion(q, unit=False)
-    if arr.ndim == 1:
-        scale = math.sqrt(float(arr @ arr))
+    if arr.ndim == 1:  # in plain floats: numpy's dot product (BLAS) rounds by the CPU it runs on, and an import must not
+        w, x, y, z = arr.tolist()
+        scale = math.sqrt(w * w + x * x + y * y + z * z)
         if scale == 0.0:
             raise ValueError("cannot normalize a zero quaternion")
         return arr / scale
@@ -90,7 +91,9 @@ def multiply(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:
     p, q = np.asarray(p, dtype=float), np.asarray(q, dtype=float)
     if q.shape == (4,) and p.shape == (4,):  # one pair, as in a filter loop: plain floats
         return np.array(_multiply_one(p.tolist(), q.tolist()))
-    return (left_matrix(p) @ q[..., None])[..., 0]
+    # element-wise, not a matrix product: numpy's matmul may fuse multiply-adds by the CPU it runs on, and an
+    # import or a replay must round alike on every machine
+    return np.stack(_multiply_one(np.moveaxis(p, -1, 0), np.moveaxis(q, -1, 0)), axis=-1)  # type: ignore[arg-type]
 
 
 def _multiply_one(p: Sequence[float], q: Sequence[float]) -> tuple[float, float, float, float]:
@@ -135,7 +138,9 @@ def right_matrix(q: ArrayLike) -> NDArray[np.float64]:
 def rotate(q: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
     """Rotate 3-vectors: ``q v q*`` (body to world for an attitude quaternion)."""
     v = np.asarray(v, dtype=float)
-    return (to_matrix(q) @ v[..., None])[..., 0]
+    R = to_matrix(q)
+    x, y, z = np.moveaxis(v, -1, 0)  # element-wise, as :func:`multiply`: the same rounding on every CPU
+    return np.stack([R[..., i, 0] * x + R[..., i, 1] * y + R[..., i, 2] * z for i in range(3)], axis=-1)
 
 
 def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
@@ -150,7 +155,11 @@ def to_matrix(q: ArrayLike) -> NDArray[np.float64]:
                 2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z,
             ]
         ).reshape(3, 3)
-    return (left_matrix(q) @ np.swapaxes(right_matrix(q), -1, -2))[..., 1:, 1:]
+    w, x, y, z = np.moveaxis(q, -1, 0)  # the same entries element-wise (no matrix product: CPU-independent rounding)
+    rows = [[w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z]]
+    return np.stack([np.stack(row, axis=-1) for row in rows], axis=-2)
 
 
 def from_matrix(R: ArrayLike) -> NDArray[np.float64]:
