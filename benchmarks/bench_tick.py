@@ -1,6 +1,6 @@
-"""The fusion model's cost per tick, split by step, on the ticks of every log in logs/.
+"""The fusion model's cost per tick, the compiled tick and the Python around it, on the ticks of every log in logs/.
 
-    python benchmarks/bench_tick.py               # table: us per tick by step, per log; compile cost cold and warm
+    python benchmarks/bench_tick.py               # table: us per tick, per log, by part; compile cost cold and warm
     python benchmarks/bench_tick.py --runs 7      # median of 7 runs (default 5)
     python benchmarks/bench_tick.py --skip-compile
     python benchmarks/bench_tick.py --baseline main   # REF's code too, in the same run: per tick and compile cost
@@ -16,14 +16,13 @@ same totals are measured with REF's code (a temporary worktree, in a child
 process) just before and just after this tree's, the fastest of both kept
 (this tree's then get as many runs).
 
-The split by step is measured in a separate run with every step's function
-wrapped by a timer that charges each call its *exclusive* time (a nested
-step's time goes to the nested step); the timer's own cost per call,
-calibrated on an empty function, is taken off. What no wrapped function
-covers (``FusionModel.step``'s own lines: lists, dataclasses, counters) is
-"step's own code". The wrapped names are those ``fuser.model.fusion`` calls
-(and the normalizer entry points of :mod:`core.bingham`), so the split holds
-whether a step runs as numpy or as a compiled kernel.
+The split is measured in a separate run with the compiled tick
+(:func:`fuser.model.fusion.tick`, one numba function for the whole tick: its
+steps cannot be timed apart from Python) wrapped by a timer; the timer's own
+cost per call, calibrated on an empty function, is taken off. The rest of
+``FusionModel.step`` (the tick's samples laid out as arrays, the reference
+field, the diagnostics and counters turned back into Python values) is "the
+Python around it".
 
 Compile cost (numba, ``cache=True``): a new interpreter imports the model and
 steps one tick of a simulated flight, once after deleting the on-disk caches
@@ -57,13 +56,10 @@ ROOT = Path(os.environ.get("BENCH_CODE_ROOT") or Path(__file__).resolve().parent
 """The tree whose code is measured (``bench_fuser.py --baseline`` sets another revision's)."""
 sys.path.insert(0, str(ROOT))
 
-import core.bingham  # noqa: E402
 import fuser.model.fusion as fusion  # noqa: E402
-from fuser import model_error  # noqa: E402
 from fuser.config import FuserConfig, load_config  # noqa: E402
 from fuser.loop import estimate_of  # noqa: E402
 from fuser.model import FusionModel, TickInput  # noqa: E402
-from fuser.model import bias as bias_feedback  # noqa: E402
 from fuser.pipeline import Pipeline  # noqa: E402
 from fuser.record import read_log  # noqa: E402
 
@@ -71,24 +67,12 @@ TICK_TARGET_US = 25.0
 COLD_TARGET_S = 10.0
 WARM_TARGET_S = 1.0
 
-# step -> (namespace, attribute) of every function of that step the tick calls
+# part -> (namespace, attribute) of every function of that part FusionModel.step calls
 STEPS: dict[str, list[tuple[object, str]]] = {
-    "imu check": [(fusion, "check_imus")],
-    "propagation (gyro integration, prediction)": [(fusion, "integrate_gyro"), (fusion, "predict"), (fusion, "turned_heading")],
-    "gravity / velocity update": [(fusion, "turn_frame"), (fusion, "tilt_time_constant_s"), (fusion, "track_velocity"),
-                                  (fusion, "update_gravity"), (fusion, "update_gravity_aided"), (fusion, "mean_in_state_body"),
-                                  (fusion, "lags_s")],
-    "heading (magnetometer)": [(fusion.FusionModel, "_mag_in_state_body"), (fusion, "heading_sigma_rad"), (fusion, "update_heading"),
-                               (fusion, "_field_reference"), (fusion, "update_field")],
-    "attitude source": [(fusion, "attitude_in_use"), (fusion, "update_attitude")],
-    "product + eigendecomposition": [(fusion, "_multiplied")],
-    "moment fit / normaliser": [(core.bingham, "fit_dispersion_trusted"), (core.bingham, "moments_trusted"), (fusion, "rms_angle_deg")],
-    "rest, bias": [(fusion, "detect_rest"), (fusion, "measure_bias"), (bias_feedback, "propagate"),
-                   (bias_feedback, "learn_from_tick")],
-    "model error": [(model_error, "published"), (model_error, "observe_rate")],
+    "compiled tick (fuser.model.fusion.tick)": [(fusion, "tick")],
 }
 PUBLISH = "publish (estimate_of: the wire Estimate)"
-OWN = "step's own code"
+OWN = "the Python around it (samples in, diagnostics and counters out)"
 
 
 def config_for(log: Path) -> FuserConfig:

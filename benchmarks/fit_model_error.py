@@ -43,6 +43,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from fuser.config import FuserConfig, ModelErrorSettings  # noqa: E402
 from fuser.importers import BROAD_ATTRIBUTION  # noqa: E402
+from fuser.model.params import PARAMS_DTYPE  # noqa: E402
 from fuser.model_error import model_error_variances, widened_concentrations  # noqa: E402
 
 LEVELS = np.array([0.5, 0.9, 0.95])
@@ -63,9 +64,18 @@ class TrialStates:
     q_true: np.ndarray
 
 
+def settings_record(params: ModelErrorSettings) -> np.void:
+    """``params`` as the model reads them: the ``model_error`` group of the parameters record (:mod:`fuser.model.params`;
+    its three floats copied, not a whole configuration built: the grid scores thousands of sets)."""
+    out = np.zeros(1, PARAMS_DTYPE["model_error"])[0]
+    for name in out.dtype.names:
+        out[name] = getattr(params, name)
+    return out
+
+
 def score(trial: TrialStates, params: ModelErrorSettings) -> tuple[np.ndarray, float]:
     """Coverage (%) of the 50/90/95 % regions and mean log-likelihood (up to a constant) of the truth."""
-    tilt, heading = model_error_variances(params, trial.rate_sq, heading_floor=True)
+    tilt, heading = model_error_variances(settings_record(params), trial.rate_sq, heading_floor=True)
     z = widened_concentrations(trial.M, trial.Z, tilt[:, None], heading[:, None])
     y = np.einsum("nij,ni->nj", trial.M[:, :, :3], trial.q_true)
     exponent = np.sum(z * y * y, axis=1)

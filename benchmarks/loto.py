@@ -44,7 +44,7 @@ import numpy as np
 
 from broad import broad_errors, finish_error_plot, interp_quat, rmse, run_vqf
 from core import quaternion as quat
-from fit_model_error import LEVELS, THRESHOLDS, TrialStates, best, grid_scores, score
+from fit_model_error import LEVELS, THRESHOLDS, TrialStates, best, grid_scores, score, settings_record
 from fuser.codec import decode_sample
 from fuser.config import FuserConfig, ModelErrorSettings
 from fuser.importers import Q_SB, broad_quat_from_ned, broad_quat_to_ned, read_broad, write_mcap
@@ -247,7 +247,7 @@ def run(paths: list[Path], base: FuserConfig, candidates: list[dict], workdir: P
 
 def widened_sigma_deg(states: TrialStates, model_error: ModelErrorSettings) -> np.ndarray:
     """RMS angular uncertainty (deg) of each widened state, concentrated limit: sqrt(sum over axes of 2/|z|)."""
-    tilt, heading = model_error_variances(model_error, states.rate_sq, heading_floor=True)
+    tilt, heading = model_error_variances(settings_record(model_error), states.rate_sq, heading_floor=True)
     z = widened_concentrations(states.M, states.Z, np.atleast_1d(tilt)[:, None], np.atleast_1d(heading)[:, None])
     return np.degrees(np.sqrt(np.sum(2.0 / np.maximum(np.abs(z), 1e-12), axis=1)))
 

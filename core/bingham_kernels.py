@@ -33,7 +33,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["down_alignment_sq", "product_parameters", "rotated_left", "rotated_right", "sorted_concentrations", "symmetric_eigh"]
+__all__ = ["down_alignment_sq", "mode", "product_parameters", "rms_angle_deg", "rotated_left", "rotated_right", "sorted_concentrations",
+           "symmetric_eigh"]
 
 _MAX_SWEEPS = 60
 
@@ -195,3 +196,20 @@ def down_alignment_sq(M: np.ndarray) -> np.ndarray:
         cos = down[0] * M[0, i] + down[1] * M[1, i] + down[2] * M[2, i] + down[3] * M[3, i]
         out[i] = cos * cos
     return out
+
+
+@njit(cache=True, nogil=True)
+def mode(M: np.ndarray) -> tuple:
+    """The most likely attitude ``M[:, 3]`` as a tuple (w, x, y, z), sign chosen so that ``w >= 0``
+    (:attr:`core.bingham.Bingham.mode`)."""
+    if M[0, 3] < 0:
+        return -M[0, 3], -M[1, 3], -M[2, 3], -M[3, 3]
+    return M[0, 3], M[1, 3], M[2, 3], M[3, 3]
+
+
+@njit(cache=True, nogil=True)
+def rms_angle_deg(moments: np.ndarray) -> float:
+    """``2 asin(sqrt(E[sin^2(theta/2)]))`` in degrees for ``theta`` the angle to the mode, from a Bingham's moments
+    (mode last; :func:`core.filters.rms_angle_deg`)."""
+    dispersion = min(max(1.0 - moments[3], 0.0), 1.0)
+    return math.degrees(2.0 * math.asin(math.sqrt(dispersion)))

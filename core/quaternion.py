@@ -33,7 +33,6 @@ __all__ = [
     "power",
     "right_matrix",
     "rotate",
-    "rotvec_between",
     "to_axis_angle",
     "to_matrix",
     "to_rotvec",
@@ -231,12 +230,6 @@ def _from_rotvec_one(x: float, y: float, z: float) -> tuple[float, float, float,
     return math.cos(0.5 * angle), sinc * x, sinc * y, sinc * z
 
 
-def turned_by(q: Sequence[float], rotvec: Sequence[float]) -> tuple[float, float, float, float]:
-    """``q (x) exp(rotvec)`` for one quaternion and a body-frame rotation vector, in plain floats: the same
-    arithmetic as ``multiply(q, from_rotvec(rotvec))`` without an array per call."""
-    return _multiply_one(q, _from_rotvec_one(*rotvec))
-
-
 def to_rotvec(q: ArrayLike) -> NDArray[np.float64]:
     """Rotation vector (angle in [0, pi] times axis) of ``q``; ``q`` and ``-q`` agree."""
     q = np.asarray(q, dtype=float)
@@ -262,20 +255,6 @@ def _rotvec_one(w: float, x: float, y: float, z: float) -> tuple[float, float, f
 def power(q: ArrayLike, c: ArrayLike) -> NDArray[np.float64]:
     """``q**c``: the rotation about the same axis by ``c`` times the angle (unscented paper, sec. II)."""
     return from_rotvec(np.asarray(c, dtype=float)[..., None] * to_rotvec(q))
-
-
-def rotvec_between(q_from: ArrayLike, q_to: ArrayLike, frame: Literal["world", "body"]) -> NDArray[np.float64]:
-    """Rotation vector of the turn taking ``q_from`` to ``q_to``: in the world frame ``q_to (x) q_from^-1``
-    (``q_to = exp(r) (x) q_from``), in the body frame ``q_from^-1 (x) q_to`` (``q_to = q_from (x) exp(r)``).
-    A filter's correction of its prediction, for one."""
-    q_from, q_to = np.asarray(q_from, dtype=float), np.asarray(q_to, dtype=float)
-    if q_from.shape == q_to.shape == (4,):  # one pair, as in a filter loop: plain floats (the conjugate negates exactly)
-        w, x, y, z = q_from.tolist()
-        inverse_from = (w, -x, -y, -z)
-        turn = _multiply_one(q_to.tolist(), inverse_from) if frame == "world" else _multiply_one(inverse_from, q_to.tolist())
-        return np.array(_rotvec_one(*turn))
-    turn = multiply(q_to, conjugate(q_from)) if frame == "world" else multiply(conjugate(q_from), q_to)
-    return to_rotvec(turn)
 
 
 def angular_distance(p: ArrayLike, q: ArrayLike) -> NDArray[np.float64]:

@@ -63,7 +63,7 @@ from fuser.codec import Estimate
 from fuser.config import FuserConfig, LatencySettings
 from fuser.model import FusionModel, TickInput, TickResult
 from fuser.model.extrapolation import ahead_ns
-from fuser.model.output import OutputState, advanced, at, started
+from fuser.model.output import OutputPredictor
 
 __all__ = ["FusionLoop", "Timeline", "estimate_of", "stream_of", "vehicle_of"]
 
@@ -199,9 +199,8 @@ class FusionLoop:
         """Per transport, the vehicle fused: the one of its first IMU sample."""
         self._latest_diagnostics: dict[str, dict[str, Any]] = {}
         self._ahead_ns = ahead_ns(config)
-        self._imu_delay_ns = round(config.extrapolation.imu_delay_ms * 1e6)
-        self._output: OutputState | None = None
-        """The output predictor since the last tick (``extrapolation.every_imu_sample``; None: off or waiting)."""
+        self._output: OutputPredictor | None = self.model.output_predictor() if config.extrapolation.every_imu_sample else None
+        """The output predictor (``extrapolation.every_imu_sample``; None: off), active from a tick to the next."""
         self._last_result: TickResult | None = None
         self._last_counters: dict[str, int] = {}
         self._last_stamp_ns = -(2**63)
@@ -256,15 +255,14 @@ class FusionLoop:
         self._seq += 1
         self.counters["samples"] += 1
         if self._predicted_through(sample, placed) and self._last_result is not None:
-            return [self._estimate(receive_ns, at(self._output, receive_ns, self._imu_delay_ns), self._last_result, (), predicted=True)]
+            return [self._estimate(receive_ns, self._output.at(receive_ns), self._last_result, (), predicted=True)]  # type: ignore[union-attr]
         return []
 
     def _predicted_through(self, sample: Sample, placed_ns: int) -> bool:
         """Turn the output predictor through ``sample`` if it is the reference IMU's; True if it now ends there."""
-        if self._output is None or not isinstance(sample, ImuSample) or sample.source != self.reference_imu:
+        if self._output is None or not isinstance(sample, ImuSample) or sample.source != self.reference_imu or not self._output.active:
             return False
-        self._output = advanced(self.config.gyro, self._output, sample.gyro_rad_s, placed_ns)
-        return self._output is not None and self._output.last_ns == placed_ns
+        return self._output.advance(sample.gyro_rad_s, placed_ns)
 
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
@@ -300,16 +298,18 @@ class FusionLoop:
         self.counters["ticks"] += 1
         result = self.model.step(TickInput(tick_ns, dt, [p[2] for p in due], [p[0] for p in due]))
         self._last_result, self._last_counters = result, {**result.counters, **self.counters}
-        if self.config.extrapolation.every_imu_sample:  # the tick's state turned through the samples already here
+        output = self._output
+        if output is not None:  # extrapolation.every_imu_sample: the tick's state turned through the samples already here
             # stamped when due, or with the last prediction's stamp if a sample received after that went first
             stamp, published = max(tick_ns + self._wait_ns, self._last_stamp_ns), result.published
-            state = self.model.state
-            self._output = None if result.imu_fault else started(result.published, result.lead_rotation, state.gyro.track,
-                                                                 state.bias.estimate_rad_s)
+            if result.imu_fault:
+                output.stop()
+            else:
+                self.model.start_output(output)
             for placed, _, sample in self._pending:
                 self._predicted_through(sample, placed)
-            if self._output is not None:
-                published = at(self._output, stamp, self._imu_delay_ns)
+            if output.active:
+                published = output.at(stamp)
         else:
             stamp, published = tick_ns + result.ahead_ns, result.published  # the time it is for (fuser.model.extrapolation)
         estimate = self._estimate(stamp, published, result, result.diagnostics)

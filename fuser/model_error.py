@@ -23,22 +23,25 @@ in fast motion the hand's accelerations are most of that rate-proportional
 error), the fit sets the tilt floor and the rate term to zero and the heading
 floor to 2.5 deg (``fuser.config.ModelErrorSettings``); both terms stay for
 sensors that need them.
+
+The per-tick functions are compiled (numba) for the tick
+(:func:`fuser.model.fusion.tick`): the rate is the state record's
+``model_error`` part (:data:`fuser.model.state.MODEL_ERROR`), a Bingham its
+``(M, Z)``. :func:`model_error_variances` and :func:`widened_concentrations`
+also score stacks of states for ``benchmarks/fit_model_error.py``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
 from core import quaternion as quat
-from core.bingham import Bingham
-from core.bingham_kernels import down_alignment_sq
-from fuser.config import ModelErrorSettings
+from core.bingham_kernels import down_alignment_sq, sorted_concentrations
 
-__all__ = ["ModelErrorState", "model_error_variances", "observe_rate", "published", "widened_concentrations", "with_model_error"]
+__all__ = ["model_error_variances", "observe_rate", "published", "widened_concentrations", "with_model_error"]
 
 _DOWN_PURE = np.array([0.0, 0.0, 0.0, 1.0])  # world down (NED z) as a pure quaternion
 
@@ -68,8 +71,9 @@ def _widened_one(M: np.ndarray, Z: np.ndarray, tilt_variance: float, heading_var
     return out
 
 
-def with_model_error(state: Bingham, tilt_variance: float, heading_variance: float) -> Bingham:
-    """``state`` composed with an independent world-frame error of the model (a consider term).
+@njit(cache=True, nogil=True)
+def with_model_error(M: np.ndarray, Z: np.ndarray, tilt_variance: float, heading_variance: float) -> tuple:
+    """``(M, Z)``: the Bingham ``(M, Z)`` composed with an independent world-frame error of the model (a consider term).
 
     Treating the errors the filter cannot see as an independent rotation
     error ``e`` with per-axis angle variances ``tilt_variance`` (about the
@@ -81,36 +85,26 @@ def with_model_error(state: Bingham, tilt_variance: float, heading_variance: flo
     quarter of the angle variance along the body axis ``vec(mode^-1 (x) m_i)``
     is added there; the principal directions are kept (the projection drops
     the model error's small off-diagonal part), so no eigendecomposition is
-    needed. An unknown axis (``z_i = 0``) stays unknown.
+    needed (the columns re-sorted by concentration). An unknown axis (``z_i = 0``) stays unknown.
     """
-    return state.with_concentrations(_widened_one(state.M, state.Z, float(tilt_variance), float(heading_variance)))
+    widened_M, widened_Z, _ = sorted_concentrations(M, _widened_one(M, Z, tilt_variance, heading_variance))
+    return widened_M, widened_Z
 
 
-@dataclass(frozen=True, slots=True)
-class ModelErrorState:
-    """The recent rotation rate the rate term scales with."""
-
-    rate_sq: float = 0.0
-    """Low-passed squared bias-corrected rotation rate, (rad/s)^2."""
-
-    @property
-    def recent_rate_rad_s(self) -> float:
-        """RMS of the bias-corrected rotation rate over the low-pass window (rad/s)."""
-        return math.sqrt(self.rate_sq)
-
-
-def observe_rate(state: ModelErrorState, rate_rad_s: float, dt_s: float, window_s: float) -> ModelErrorState:
-    """``state`` after one tick's bias-corrected rotation rate over ``dt_s``, low-passed over ``window_s``
-    (the tilt correction time ``fuser.accel.lowpass_s``: the window of the rate that matters, see below)."""
+@njit(cache=True, nogil=True)
+def observe_rate(model_error: np.record, rate_rad_s: float, dt_s: float, window_s: float) -> None:
+    """One tick's bias-corrected rotation rate over ``dt_s`` into ``model_error`` (the state's part, in place),
+    low-passed over ``window_s`` (the tilt correction time ``fuser.accel.lowpass_s``: the window of the rate that
+    matters, see :func:`model_error_variances`). Its RMS rate is ``sqrt(model_error.rate_sq)``."""
     a = min(1.0, dt_s / window_s)
-    return ModelErrorState(state.rate_sq + a * (rate_rad_s * rate_rad_s - state.rate_sq))
+    model_error.rate_sq = model_error.rate_sq + a * (rate_rad_s * rate_rad_s - model_error.rate_sq)
 
 
-def model_error_variances(
-    params: ModelErrorSettings, rate_sq: float | np.ndarray, heading_floor: bool
-) -> tuple[float | np.ndarray, float | np.ndarray]:
+@njit(cache=True, nogil=True)
+def model_error_variances(params_model_error: np.record, rate_sq, heading_floor: bool) -> tuple:
     """Per-axis angle variances (rad^2), tilt and heading, at a mean squared rotation rate ``rate_sq``
-    ((rad/s)^2; a scalar or an array); the heading floor only with a magnetometer (``heading_floor``).
+    ((rad/s)^2; a float, or an array for a stack of states); the heading floor only with a magnetometer
+    (``heading_floor``). ``params_model_error``: the ``model_error`` group of :mod:`fuser.model.params`.
 
     Two terms, added as variances (independent causes):
 
@@ -127,18 +121,22 @@ def model_error_variances(
       only as white noise per tick, which its corrections average away, so it
       does not see this.
     """
-    rate = (params.rate_s**2) * rate_sq
-    floor = math.radians(params.heading_deg) ** 2 if heading_floor else 0.0
-    return math.radians(params.tilt_deg) ** 2 + rate, floor + rate
+    rate = (params_model_error.rate_s * params_model_error.rate_s) * rate_sq
+    heading = math.radians(params_model_error.heading_deg)
+    floor = heading * heading if heading_floor else 0.0
+    tilt = math.radians(params_model_error.tilt_deg)
+    return tilt * tilt + rate, floor + rate
 
 
-def published(params: ModelErrorSettings, state: Bingham, rate_sq: float, heading_floor: bool, isotropic_rad2: float = 0.0,
-              unseen_rad2: tuple[float, float] = (0.0, 0.0)) -> Bingham:
-    """The published state: ``state`` with the model error at ``rate_sq`` (:func:`with_model_error`), a further
-    independent error of per-axis variance ``isotropic_rad2`` on every axis (the held gyro rate's, for one) and
-    ``unseen_rad2`` (tilt, heading) of an acceleration the filter cannot see (:mod:`fuser.model.unaided`)."""
-    tilt, heading = model_error_variances(params, rate_sq, heading_floor)
-    tilt, heading = tilt + isotropic_rad2 + unseen_rad2[0], heading + isotropic_rad2 + unseen_rad2[1]
+@njit(cache=True, nogil=True)
+def published(params_model_error: np.record, M: np.ndarray, Z: np.ndarray, rate_sq: float, heading_floor: bool, isotropic_rad2: float,
+              unseen_tilt_rad2: float, unseen_heading_rad2: float) -> tuple:
+    """``(M, Z)`` of the published state: the Bingham ``(M, Z)`` with the model error at ``rate_sq``
+    (:func:`with_model_error`), a further independent error of per-axis variance ``isotropic_rad2`` on every axis
+    (the held gyro rate's, for one) and ``unseen_tilt_rad2``, ``unseen_heading_rad2`` of an acceleration the filter
+    cannot see (:mod:`fuser.model.unaided`); ``M`` and ``Z`` themselves when there is none."""
+    tilt, heading = model_error_variances(params_model_error, rate_sq, heading_floor)
+    tilt, heading = tilt + isotropic_rad2 + unseen_tilt_rad2, heading + isotropic_rad2 + unseen_heading_rad2
     if tilt == 0.0 and heading == 0.0:
-        return state
-    return with_model_error(state, tilt, heading)
+        return M, Z
+    return with_model_error(M, Z, tilt, heading)

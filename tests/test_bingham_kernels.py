@@ -14,10 +14,11 @@ from core import bingham_kernels as kernels
 from core import quaternion as quat
 from core import saddlepoint
 from core.bingham import Bingham, composition_inertia
+from core.filters import rms_angle_deg
 from core.normalization import MIN_MOMENT, fit_dispersion_trusted, moments, moments_trusted
 from core.observations import heading_exponent, vector_exponent
 from fuser.model.velocity import tilt_doubt_deg
-from fuser.model_error import _widened_one, widened_concentrations
+from fuser.model_error import _widened_one, widened_concentrations, with_model_error
 
 RNG_SEEDS = range(40)
 
@@ -200,6 +201,41 @@ def test_widened_one_matches_the_vectorised_widening(seed):
 
 
 @pytest.mark.parametrize("seed", RNG_SEEDS)
+def test_with_model_error_is_the_widened_bingham(seed):
+    """The compiled consider term (``(M, Z)`` in and out) is the Bingham with the widened concentrations, re-sorted
+    (:meth:`core.bingham.Bingham.with_concentrations`, the form it replaced), and widens every axis it knows."""
+    rng = np.random.default_rng(seed)
+    state = random_state(rng, 10.0 ** rng.uniform(-2, 9))
+    tilt, heading = 10.0 ** rng.uniform(-8, -2, size=2)
+    M, Z = with_model_error(state.M, state.Z, tilt, heading)
+    ref = state.with_concentrations(widened_concentrations(state.M, state.Z, tilt, heading))
+    np.testing.assert_array_equal(M, ref.M)
+    np.testing.assert_allclose(Z, ref.Z, rtol=1e-14)
+    assert np.all(np.abs(np.sort(Z)[:3]) < np.abs(np.sort(state.Z)[:3]))  # wider along every principal direction
+    np.testing.assert_array_equal(M[:, 3], state.M[:, 3])  # the mode kept
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_mode_and_rms_angle_are_the_binghams(seed):
+    """The compiled tick's mode (``w >= 0``) and RMS angle from the moments, against :attr:`Bingham.mode` and
+    :func:`core.filters.rms_angle_deg`; either sign of the mode's column gives the same attitude."""
+    rng = np.random.default_rng(seed)
+    state = random_state(rng, 10.0 ** rng.uniform(-2, 9))
+    for M in (state.M, state.M * np.array([1.0, 1.0, 1.0, -1.0])):
+        q = kernels.mode(np.ascontiguousarray(M))
+        assert isinstance(q, tuple) and q[0] >= 0.0
+        np.testing.assert_array_equal(q, state.mode)
+    assert kernels.rms_angle_deg(state.moments("saddlepoint")) == pytest.approx(rms_angle_deg(state, "saddlepoint"), rel=1e-15)
+    assert kernels.rms_angle_deg(np.array([0.25, 0.25, 0.25, 0.25])) == pytest.approx(120.0)  # uniform: 2 asin(sqrt(3/4))
+    assert kernels.rms_angle_deg(np.array([0.0, 0.0, 0.0, 1.0])) == 0.0
+
+
+def _tilt_doubt_deg(state: Bingham) -> float:
+    """:func:`tilt_doubt_deg` of a Bingham (it takes ``M`` and the moments: the tick has them from its prediction)."""
+    return tilt_doubt_deg(state.M, state.moments("saddlepoint"))
+
+
+@pytest.mark.parametrize("seed", RNG_SEEDS)
 def test_down_alignment_and_tilt_variance_match_the_quaternion_forms(seed):
     rng = np.random.default_rng(seed)
     state = random_state(rng, 10.0 ** rng.uniform(-2, 9))
@@ -208,7 +244,7 @@ def test_down_alignment_and_tilt_variance_match_the_quaternion_forms(seed):
     np.testing.assert_allclose(kernels.down_alignment_sq(M), along_down, rtol=1e-13, atol=1e-15)
     moments_ = state.moments()
     variance = float(4.0 * moments_[:3] @ (1.0 - np.minimum(along_down, 1.0)))
-    assert tilt_doubt_deg(state, "saddlepoint") == pytest.approx(math.degrees(math.sqrt(max(variance, 0.0))), rel=1e-12)
+    assert _tilt_doubt_deg(state) == pytest.approx(math.degrees(math.sqrt(max(variance, 0.0))), rel=1e-12)
 
 
 def test_tilt_doubt_counts_the_tilt_axes_only():
@@ -216,8 +252,8 @@ def test_tilt_doubt_counts_the_tilt_axes_only():
     variance is 4 E[y^2] summed over the axes other than down."""
     heading_spread = Bingham.from_mode(quat.IDENTITY, [-1e9, -1e9, -50.0])  # unsure about the heading only
     tilt_spread = Bingham.from_mode(quat.IDENTITY, [-1e9, -50.0, -1e9])  # unsure about pitch only
-    assert tilt_doubt_deg(heading_spread, "saddlepoint") == pytest.approx(math.degrees(math.sqrt(4.0 * 2 * 0.5e-9)), rel=0.02)
-    assert tilt_doubt_deg(tilt_spread, "saddlepoint") == pytest.approx(math.degrees(math.sqrt(4.0 * (0.01 + 0.5e-9))), rel=0.02)
+    assert _tilt_doubt_deg(heading_spread) == pytest.approx(math.degrees(math.sqrt(4.0 * 2 * 0.5e-9)), rel=0.02)
+    assert _tilt_doubt_deg(tilt_spread) == pytest.approx(math.degrees(math.sqrt(4.0 * (0.01 + 0.5e-9))), rel=0.02)
 
 
 @pytest.mark.parametrize("seed", range(10))

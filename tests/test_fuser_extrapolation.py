@@ -10,9 +10,18 @@ from drivers.samples import ImuSample
 from fuser.config import ExtrapolationSettings, FuserConfig, GyroSettings
 from fuser.loop import FusionLoop
 from fuser.model.extrapolation import ahead_ns, carry_ns, lead
-from fuser.model.state import GyroTrack
 from fusion_inputs import FIELD, GRAVITY_M_S2, SRC
+from model_records import params, part, set_fields
 from motion_inputs import truth_at, turning
+
+
+def _gyro(**track) -> np.record:
+    """The state's gyro part (:data:`fuser.model.state.GYRO`) with a track of the fields ``track``; none if empty."""
+    gyro = part("gyro")
+    if track:
+        set_fields(gyro.track, **track)
+        gyro.has_track = True
+    return gyro
 
 
 def test_how_far_ahead_from_the_settings():
@@ -26,22 +35,45 @@ def test_how_far_ahead_from_the_settings():
 def test_the_lead_holds_the_last_rate_with_the_held_rates_error():
     """Hand-worked: a sample 2 ms before the tick, carried 10 ms: turned by (rate - bias) 10 ms, variance
     s^2 ((a + L)^3 - a^3) / 3 with a = 2 ms, L = 10 ms."""
-    gyro = GyroSettings(rate_walk_rad_s_rt_s=0.3)
-    track = GyroTrack(last_ns=98_000_000, last_rate_rad_s=(0.5, -0.2, 1.0), covered_ns=100_000_000, held_rad=(0.0, 0.0, 0.0))
-    bias = np.array([0.1, 0.0, 0.0])
+    gyro = params(FuserConfig(gyro=GyroSettings(rate_walk_rad_s_rt_s=0.3))).gyro
+    track = _gyro(last_ns=98_000_000, last_rate_rad_s=(0.5, -0.2, 1.0), covered_ns=100_000_000, held_rad=(0.0, 0.0, 0.0))
+    bias = (0.1, 0.0, 0.0)
     out = lead(gyro, track, bias, 100_000_000, 10_000_000)
+    assert out.has_rotation
     np.testing.assert_allclose(out.rotation, quat.from_rotvec(np.array([0.4, -0.2, 1.0]) * 0.010), atol=1e-15)
     assert out.variance_rad2 == pytest.approx(0.09 * (0.012**3 - 0.002**3) / 3.0, rel=1e-12)
 
 
 def test_a_hold_that_runs_out_within_the_lead_grows_as_a_gap():
-    gyro = GyroSettings(max_interval_s=0.6, gap_rate_rad_s=1.0, rate_walk_rad_s_rt_s=0.0)
-    track = GyroTrack(last_ns=0, last_rate_rad_s=(0.0, 0.0, 2.0), covered_ns=595_000_000, held_rad=(0.0, 0.0, 1.19))
-    out = lead(gyro, track, np.zeros(3), 595_000_000, 10_000_000)  # 5 ms more hold, then 5 ms of gap
+    gyro = params(FuserConfig(gyro=GyroSettings(max_interval_s=0.6, gap_rate_rad_s=1.0, rate_walk_rad_s_rt_s=0.0))).gyro
+    track = _gyro(last_ns=0, last_rate_rad_s=(0.0, 0.0, 2.0), covered_ns=595_000_000, held_rad=(0.0, 0.0, 1.19))
+    zero = (0.0, 0.0, 0.0)
+    out = lead(gyro, track, zero, 595_000_000, 10_000_000)  # 5 ms more hold, then 5 ms of gap
+    assert out.has_rotation
     np.testing.assert_allclose(out.rotation, quat.from_rotvec([0.0, 0.0, 2.0 * 0.005]), atol=1e-15)
     assert out.variance_rad2 == pytest.approx((1.0 * 0.005) ** 2, rel=1e-12)
-    assert lead(gyro, None, np.zeros(3), 0, 10_000_000).variance_rad2 == pytest.approx(1e-4)  # no gyro at all
-    assert lead(gyro, track, np.zeros(3), 595_000_000, 0).rotation is None
+    assert lead(gyro, _gyro(), zero, 0, 10_000_000).variance_rad2 == pytest.approx(1e-4)  # no gyro at all
+    not_carried = lead(gyro, track, zero, 595_000_000, 0)
+    assert not not_carried.has_rotation and not_carried.rotation == (1.0, 0.0, 0.0, 0.0)  # not turned: the identity
+
+
+def test_no_rotation_without_a_held_rate():
+    """The cases :func:`lead` does not turn (``has_rotation`` False, the identity): no gyro yet (the gap's rate), a
+    saturated last sample (the range's), a hold run out before the tick (all gap), a zero rate (only its error)."""
+    gyro = params(FuserConfig(gyro=GyroSettings(max_interval_s=0.05, gap_rate_rad_s=1.0, range_rad_s=30.0, rate_walk_rad_s_rt_s=0.5))).gyro
+    zero, identity = (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)
+    rate = dict(last_rate_rad_s=(0.0, 0.0, 2.0), held_rad=(0.0, 0.0, 0.0))
+    cases = {
+        "no gyro": (_gyro(), 1e-4),
+        "saturated": (_gyro(last_ns=0, covered_ns=10_000_000, saturated=True, **rate), (30.0 * 0.01) ** 2),
+        "hold ran out": (_gyro(last_ns=-50_000_000, covered_ns=10_000_000, **rate), (1.0 * 0.01) ** 2),
+        "zero rate": (_gyro(last_ns=0, covered_ns=10_000_000, last_rate_rad_s=(0.1, 0.0, 0.0), held_rad=zero),
+                      0.25 * (0.02**3 - 0.01**3) / 3.0),
+    }
+    for name, (track, variance) in cases.items():
+        out = lead(gyro, track, (0.1, 0.0, 0.0), 10_000_000, 10_000_000)
+        assert not out.has_rotation and out.rotation == identity, name
+        assert out.variance_rad2 == pytest.approx(variance, rel=1e-12), name
 
 
 IMU_HZ = 1e9 / 3_500_000

@@ -236,17 +236,25 @@ def test_a_vehicle_whose_gnss_stopped_in_flight_is_not_moving_for_ever():
     is fresh at the tick (``max_age_s`` plus the receiver's latency after it was measured), not for ever: after a
     GNSS loss in flight and a landing the rest detector must run again. Before, a stream was compared with the
     newest fix of the kept streams, its own, so it stayed moving."""
-    from fuser.model.state import GnssStream, GravityState, VelocityState
+    from fuser.model.diagnostics import DIAGNOSTIC
+    from fuser.model.state import initial_state
     from fuser.model.velocity import track_velocity
+    from model_records import gnss_input, params, part
 
     cfg = FuserConfig()
+    p = params(cfg)
     measured = 10_000_000_000
-    state = VelocityState(streams=(GnssStream(("gps", False), measured, (5.0, 0.0, 0.0), True, 0.3),))
     fresh_ns = round((cfg.gnss.max_age_s + cfg.gnss.latency_ms * 1e-3) * 1e9)
 
     def moving_at(tick_ns: int) -> bool:
-        return track_velocity(cfg.gnss, cfg.accel, cfg.updates, state, [], GravityState(), None, tick_ns, 10_000_000,
-                              quat.IDENTITY.copy(), 90.0, 90.0, 3.0, False).moving
+        state = initial_state(cfg)  # a fresh one each time: the stream's last fix, 5 m/s north, in slot 0
+        v = state.velocity
+        v.stream_seen[0], v.stream_measured_ns[0], v.stream_vel_ned_m_s[0] = 1, measured, (5.0, 0.0, 0.0)
+        v.stream_vertical[0], v.stream_noise_m_s[0] = 1, 0.3
+        track, _ = track_velocity(p.gnss, p.accel, p.updates, v, state.knots_ns, state.knots, gnss_input([]), part("gravity"), False,
+                                  (0.0, 0.0, 0.0), tick_ns, 10_000_000, tuple(quat.IDENTITY), 90.0, 90.0, 3.0, False,
+                                  np.zeros(1, DIAGNOSTIC), 0)
+        return track.moving
 
     assert moving_at(measured + fresh_ns)
     assert not moving_at(measured + fresh_ns + 10_000_000)

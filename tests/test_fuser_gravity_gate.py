@@ -15,20 +15,22 @@ import numpy as np
 import pytest
 
 from core import quaternion as quat
-from fuser.config import AccelSettings, UpdateSettings
+from fuser.config import AccelSettings
 from fuser.model.gravity import update_gravity
-from fuser.model.state import GravityState
 from fuser.model.tick import TickContext
+from model_records import params, part, update_diagnostic
 
 G = AccelSettings().gravity_m_s2
 GATE_DEG = 3.0 * math.hypot(0.5, 1.0)
+P = params()
+NO_GNSS = (False, (0.0, 0.0, 0.0), 0.0)
 
 
-def _tilted_reading(tilt_deg: float) -> tuple[GravityState, np.ndarray]:
+def _tilted_reading(tilt_deg: float) -> tuple[np.record, np.ndarray]:
     """A converged state whose low-pass already holds a specific force ``tilt_deg`` off the level prediction."""
     a = math.radians(tilt_deg)
     f = np.array([0.0, G * math.sin(a), -G * math.cos(a)])  # -f is down tilted by a about the body x axis
-    return GravityState(accel_lp_m_s2=f.copy(), converged=True, tilt_known=True), f
+    return part("gravity", accel_lp_m_s2=f.copy(), converged=True, tilt_known=True), f
 
 
 @pytest.mark.parametrize("dt_s", [0.01, 0.005])
@@ -36,8 +38,8 @@ def _tilted_reading(tilt_deg: float) -> tuple[GravityState, np.ndarray]:
 def test_the_gate_is_the_low_passed_downs_error_at_any_loop_rate(dt_s, tilt_deg, outcome):
     tick = TickContext(dt_s=dt_s, process_variance_rad2=1e-6 * dt_s / 0.01, prior_doubt_deg=1.0, prior_tilt_doubt_deg=1.0)
     state, f = _tilted_reading(tilt_deg)
-    reading = update_gravity(AccelSettings(), UpdateSettings(), state, tick, f, 3.0, quat.IDENTITY.copy(), dt_s)
-    d = reading.diagnostic
+    reading = update_gravity(P.accel, P.updates, state, tick, tuple(f), 3.0, tuple(quat.IDENTITY), dt_s, True, *NO_GNSS)
+    d = update_diagnostic(reading.diagnostic)
     assert d.innovation_deg == pytest.approx(tilt_deg, abs=1e-9)
     assert d.outcome == outcome
     # the sigma that sets the gain is kept, and is what the old gate would have used (17.2 / 24.3 deg)

@@ -19,7 +19,9 @@ from drivers.samples import AttitudeSample, ImuSample
 from fuser.config import AttitudeSettings, FuserConfig, MagSettings
 from fuser.loop import FusionLoop
 from fuser.model.propagation import integrate_gyro
+from fuser.model.tick import IMU_INPUT
 from fusion_inputs import GRAVITY_M_S2, SRC
+from model_records import params, part
 
 W_MAX_RAD_S = 1.0
 TURN_S = 2.0
@@ -73,18 +75,26 @@ def test_a_turn_is_integrated_completely_at_any_imu_and_loop_rate(imu_hz, loop_h
     assert abs(turned / TRUE_TURN_RAD - 1.0) < 0.02, f"{100 * turned / TRUE_TURN_RAD:.1f}% of the turn"
 
 
+def _samples(*placed_rate: tuple[int, tuple[float, float, float]]) -> np.ndarray:
+    """A tick's IMU samples as the compiled tick reads them (:data:`IMU_INPUT`): each (placed time in ns, gyro rate),
+    level, one IMU."""
+    out = np.zeros(len(placed_rate), IMU_INPUT)
+    for row, (t_ns, rate) in zip(out, placed_rate):
+        row["placed_ns"], row["gyro_rad_s"], row["accel_m_s2"] = t_ns, rate, (0.0, 0.0, -9.8)
+    return out
+
+
 def test_a_tick_without_a_sample_rotates_by_the_held_rate_and_the_next_sample_completes_the_interval():
     """25 Hz constant-rate samples under a 100 Hz loop: the three ticks after a sample hold its rate; the
     sample closing the interval applies the trapezoid minus what the hold applied (hand-worked)."""
-    from fuser.config import GyroSettings
-
-    params = GyroSettings()
-    track, first = integrate_gyro(params, None, [ImuSample(0, (0.0, 0.0, 0.2), (0, 0, -9.8), None, SRC)], [0], -10_000_000, 0)
+    gyro = params().gyro
+    state = part("gyro")  # no sample yet: its track is changed in place by each tick
+    first = integrate_gyro(gyro, state, _samples((0, (0.0, 0.0, 0.2))), -10_000_000, 0)
     rotations = []
     for k in range(1, 5):
         end = k * 10_000_000
-        sample = [ImuSample(40_000_000, (0.0, 0.0, 0.6), (0, 0, -9.8), None, SRC)] if k == 4 else []
-        track, motion = integrate_gyro(params, track, sample, [40_000_000] if sample else [], end - 10_000_000, end)
+        sample = _samples((40_000_000, (0.0, 0.0, 0.6))) if k == 4 else _samples()
+        motion = integrate_gyro(gyro, state, sample, end - 10_000_000, end)
         rotations.append(motion.raw_rotation_rad[2])
         assert motion.held == (k < 4)
     np.testing.assert_allclose(rotations[:3], [0.002, 0.002, 0.002])  # 0.2 rad/s held for 10 ms
@@ -93,16 +103,18 @@ def test_a_tick_without_a_sample_rotates_by_the_held_rate_and_the_next_sample_co
     assert first.gap_s == pytest.approx(0.01)  # before the first sample the rate is unknown
     # held for 10 ms at the end of a sample: published-only error s^2 h^3 / 3
     assert motion.hold_variance_rad2 == 0.0  # the last sample lies at the tick's end
+    assert state.has_track and state.track.last_ns == 40_000_000 and tuple(state.track.last_rate_rad_s) == (0.0, 0.0, 0.6)
 
 
 def test_a_hold_runs_out_after_the_longest_interval_and_the_rest_is_a_gap():
     from fuser.config import GyroSettings
 
-    params = GyroSettings(max_interval_s=0.03, rate_walk_rad_s_rt_s=2.0)
-    track, _ = integrate_gyro(params, None, [ImuSample(0, (0.1, 0.0, 0.0), (0, 0, -9.8), None, SRC)], [0], -10_000_000, 0)
+    gyro = params(FuserConfig(gyro=GyroSettings(max_interval_s=0.03, rate_walk_rad_s_rt_s=2.0))).gyro
+    state = part("gyro")
+    integrate_gyro(gyro, state, _samples((0, (0.1, 0.0, 0.0))), -10_000_000, 0)
     held = gap = closed = 0.0
     for k in range(1, 6):
-        track, motion = integrate_gyro(params, track, [], [], (k - 1) * 10_000_000, k * 10_000_000)
+        motion = integrate_gyro(gyro, state, _samples(), (k - 1) * 10_000_000, k * 10_000_000)
         held += motion.raw_rotation_rad[0]
         gap += motion.gap_s
         closed += motion.closed_variance_rad2

@@ -12,6 +12,7 @@ from fuser.model import FusionModel
 from fuser.model.heading import heading_sigma_rad
 from fuser.model.tick import TickContext
 from fusion_inputs import FIELD, SRC, TICK, imu_at, tick
+from model_records import params
 
 
 INSTANTANEOUS_IMU = ExtrapolationSettings(imu_delay_ms=0.0)
@@ -146,21 +147,22 @@ def test_gap_without_gyro_grows_uncertainty():
 def test_heading_sigma_counts_correlated_magnetometer_errors_once_per_correlation_time():
     """Converged: error sqrt(T_c / T) for readings every T, lowered while the bias is poorly known; mag.sigma_rad before."""
     cfg = FuserConfig()
+    p = params(cfg)
     dt = 0.01
     q_gyro = cfg.gyro.noise_rad_s_rt_hz**2 * dt  # the white-noise part of the tick's process variance
     ctx = TickContext(dt, q_gyro, 1.0, 1.0)
-    assert heading_sigma_rad(cfg.mag, cfg.bias, cfg.updates, False, ctx, 1e-10, dt) == cfg.mag.sigma_rad  # not converged: a fast start
+    assert heading_sigma_rad(p.mag, p.bias, p.updates, False, ctx, 1e-10, dt) == cfg.mag.sigma_rad  # not converged: a fast start
     # a fast start's readings count per 10 ms: at 200 Hz each is sqrt(2) as noisy, at 50 Hz as given
-    assert heading_sigma_rad(cfg.mag, cfg.bias, cfg.updates, False, ctx, 1e-10, 0.005) == pytest.approx(cfg.mag.sigma_rad * math.sqrt(2.0), rel=1e-15)
-    assert heading_sigma_rad(cfg.mag, cfg.bias, cfg.updates, False, ctx, 1e-10, 0.02) == cfg.mag.sigma_rad
+    assert heading_sigma_rad(p.mag, p.bias, p.updates, False, ctx, 1e-10, 0.005) == pytest.approx(cfg.mag.sigma_rad * math.sqrt(2.0), rel=1e-15)
+    assert heading_sigma_rad(p.mag, p.bias, p.updates, False, ctx, 1e-10, 0.02) == cfg.mag.sigma_rad
     for every_s in (dt, 0.1):  # a reading every tick, and a 10 Hz magnetometer
         correlated = math.radians(cfg.mag.error_deg) * math.sqrt(cfg.mag.correlation_s / every_s)
-        assert heading_sigma_rad(cfg.mag, cfg.bias, cfg.updates, True, ctx, 1e-5**2, every_s) == pytest.approx(correlated)  # bias learnt at rest
+        assert heading_sigma_rad(p.mag, p.bias, p.updates, True, ctx, 1e-5**2, every_s) == pytest.approx(correlated)  # bias learnt at rest
     correlated = math.radians(cfg.mag.error_deg) * math.sqrt(cfg.mag.correlation_s / dt)
     sigma_b = cfg.bias.initial_sigma_rad_s  # unknown: correct within heading_bias_error / sigma_b
     tau = math.radians(cfg.mag.heading_bias_error_deg) / sigma_b
     q = sigma_b**2 * cfg.bias.time_constant_s * dt  # the bias term of the process variance
-    held = heading_sigma_rad(cfg.mag, cfg.bias, cfg.updates, True, TickContext(dt, q, 1.0, 1.0), sigma_b**2, dt)
+    held = heading_sigma_rad(p.mag, p.bias, p.updates, True, TickContext(dt, q, 1.0, 1.0), sigma_b**2, dt)
     assert held == pytest.approx(math.sqrt(q) * tau / dt) and held < correlated
     # readings every 10 ticks: the process variance over the interval is 10 q, the sigma sqrt(10 q) tau / (10 dt)
-    assert heading_sigma_rad(cfg.mag, cfg.bias, cfg.updates, True, TickContext(dt, q, 1.0, 1.0), sigma_b**2, 10 * dt) == pytest.approx(math.sqrt(10 * q) * tau / (10 * dt))
+    assert heading_sigma_rad(p.mag, p.bias, p.updates, True, TickContext(dt, q, 1.0, 1.0), sigma_b**2, 10 * dt) == pytest.approx(math.sqrt(10 * q) * tau / (10 * dt))

@@ -9,8 +9,9 @@ from core.bingham import Bingham
 from drivers.samples import ImuSample
 from fuser.config import FuserConfig, ModelErrorSettings
 from fuser.model import FusionModel
-from fuser.model_error import ModelErrorState, model_error_variances, observe_rate, widened_concentrations, with_model_error
+from fuser.model_error import model_error_variances, observe_rate, widened_concentrations, with_model_error
 from fusion_inputs import FIELD, GRAVITY_M_S2, SRC, TICK, tick
+from model_records import params, part
 
 
 def spin(model: FusionModel, rate_rad_s: float, seconds: float) -> list:
@@ -29,21 +30,21 @@ def spin(model: FusionModel, rate_rad_s: float, seconds: float) -> list:
 
 
 def test_rate_term_settles_to_the_configured_time_times_the_rate():
-    params = ModelErrorSettings(tilt_deg=0.5, heading_deg=1.0, rate_s=0.004)
-    me = ModelErrorState()
-    assert model_error_variances(params, me.rate_sq, True) == (math.radians(0.5) ** 2, math.radians(1.0) ** 2)  # at rest: the floors
+    settings = params(FuserConfig(model_error=ModelErrorSettings(tilt_deg=0.5, heading_deg=1.0, rate_s=0.004))).model_error
+    me = part("model_error")  # the state's model_error part, changed in place by observe_rate
+    assert model_error_variances(settings, me.rate_sq, True) == (math.radians(0.5) ** 2, math.radians(1.0) ** 2)  # at rest: the floors
     for _ in range(3000):  # 30 s = 10 low-pass time constants of 3 s at 5 rad/s
-        me = observe_rate(me, 5.0, 0.01, 3.0)
-    tilt, heading = model_error_variances(params, me.rate_sq, True)
+        observe_rate(me, 5.0, 0.01, 3.0)
+    tilt, heading = model_error_variances(settings, me.rate_sq, True)
     assert math.isclose(tilt, math.radians(0.5) ** 2 + (0.004 * 5.0) ** 2, rel_tol=1e-3)
     assert math.isclose(heading - tilt, math.radians(1.0) ** 2 - math.radians(0.5) ** 2, rel_tol=1e-9)
-    me = observe_rate(me, 1.0, 0.0, 3.0)  # a zero-length tick changes nothing and makes no NaN
-    assert model_error_variances(params, me.rate_sq, True) == (tilt, heading)
+    observe_rate(me, 1.0, 0.0, 3.0)  # a zero-length tick changes nothing and makes no NaN
+    assert model_error_variances(settings, me.rate_sq, True) == (tilt, heading)
 
 
 def test_heading_floor_needs_a_magnetometer():
-    params = ModelErrorSettings(heading_deg=2.0, tilt_deg=0.0)
-    assert model_error_variances(params, 0.0, heading_floor=False) == (0.0, 0.0)
+    settings = params(FuserConfig(model_error=ModelErrorSettings(heading_deg=2.0, tilt_deg=0.0))).model_error
+    assert model_error_variances(settings, 0.0, heading_floor=False) == (0.0, 0.0)
 
 
 def test_published_uncertainty_grows_with_the_rotation_rate_and_the_estimate_is_unchanged():
@@ -67,6 +68,6 @@ def test_stacked_widening_matches_one_state_at_a_time():
     tilt, heading = rng.uniform(0.0, 1e-3, 6), rng.uniform(0.0, 1e-2, 6)
     stacked = widened_concentrations(np.array([b.M for b in states]), np.array([b.Z for b in states]), tilt[:, None], heading[:, None])
     for k, b in enumerate(states):
-        expected = with_model_error(b, tilt[k], heading[k])
+        expected_M, expected_Z = with_model_error(b.M, b.Z, tilt[k], heading[k])
         exponent = b.M @ np.diag(np.r_[stacked[k], 0.0]) @ b.M.T  # same principal directions, widened
-        np.testing.assert_allclose(exponent, expected.M @ np.diag(expected.Z) @ expected.M.T, rtol=1e-10, atol=1e-9)
+        np.testing.assert_allclose(exponent, expected_M @ np.diag(expected_Z) @ expected_M.T, rtol=1e-10, atol=1e-9)

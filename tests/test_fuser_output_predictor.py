@@ -19,15 +19,19 @@ from scipy.spatial.transform import Rotation
 from core import quaternion as quat
 from core.bingham import Bingham
 from drivers.samples import ImuSample, SourceId
-from fuser.config import FuserConfig, GyroSettings, load_config
-from fuser.model.output import advanced, at, started
-from fuser.model.state import GyroTrack
+from fuser.config import FuserConfig, load_config
+from fuser.model import FusionModel
+from fuser.model.output import OUTPUT, advanced, at, started
+from fuser.model.tick import TickInput
 from fuser.pipeline import Pipeline
 from fuser.record import read_log
+from model_records import params, part, set_fields
 
 LOGS = Path(__file__).resolve().parents[1] / "logs"
 BROAD_CUT = LOGS / "broad_02_slow_rotation_cut.mcap"
-GYRO = GyroSettings()
+GYRO = params().gyro
+MAX_INTERVAL_S = FuserConfig().gyro.max_interval_s
+RANGE_RAD_S = FuserConfig().gyro.range_rad_s
 MS = 1_000_000
 PER_TICK = FuserConfig().replace(extrapolation={"every_imu_sample": False})
 """One estimate per tick, as before the output predictor."""
@@ -44,40 +48,110 @@ def _turn(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
     return (r_from.inv() * r_to).as_rotvec()
 
 
+def _gyro(**track) -> np.record:
+    """The state's gyro part (:data:`fuser.model.state.GYRO`) after a tick, its track of the fields ``track``; no
+    track (no gyro sample yet) if empty."""
+    gyro = part("gyro")
+    if track:
+        set_fields(gyro.track, **track)
+        gyro.has_track = True
+    return gyro
+
+
+def _started(published: Bingham, lead_rotation: np.ndarray | None, gyro: np.record, bias_rad_s: np.ndarray) -> np.ndarray:
+    """A predictor (:data:`OUTPUT`, one record) started after a tick: its published distribution, the lead (None:
+    not turned), the gyro and bias after it."""
+    out = np.zeros(1, OUTPUT)
+    has_lead = lead_rotation is not None
+    started(out, published.M, published.Z, has_lead, np.asarray(lead_rotation if has_lead else quat.IDENTITY, dtype=float), gyro,
+            bias_rad_s)
+    return out
+
+
+def _at(out: np.ndarray, stamp_ns: int, imu_delay_ns: int) -> Bingham:
+    """The predicted distribution at ``stamp_ns`` (:func:`at`'s directions, the tick's concentrations)."""
+    M = np.empty((4, 4))
+    at(out, stamp_ns, imu_delay_ns, M)
+    return Bingham(M, out[0]["base_Z"].copy())
+
+
 def test_a_linearly_changing_rate_turns_by_its_integral_and_the_tick_hold_is_taken_back():
     # rate about body x: w(t) = a + b t; the tick held the last sample's rate from 8 to 10 ms
     a, b = 2.0, 30.0
     rate = lambda t_s: (a + b * t_s, 0.0, 0.0)  # noqa: E731
     held = (rate(0.008)[0] * 0.002, 0.0, 0.0)
-    track = GyroTrack(8 * MS, rate(0.008), 10 * MS, held)
+    track = _gyro(last_ns=8 * MS, last_rate_rad_s=rate(0.008), covered_ns=10 * MS, held_rad=held)
     bias = np.array([0.1, 0.0, 0.0])
-    state = started(_base(), None, track, bias)
+    state = _started(_base(), None, track, bias)
     for t_ms in (12, 14, 16):
-        state = advanced(GYRO, state, rate(t_ms * 1e-3), t_ms * MS)
+        assert advanced(GYRO, state, rate(t_ms * 1e-3), t_ms * MS)  # the prediction now ends at this sample
     # from the tick (10 ms) to 16 ms: the rate's integral from 8 to 16 ms less what the hold applied, less the bias
     expected = (a * 0.008 + b * (0.016**2 - 0.008**2) / 2) - held[0] - 0.1 * 0.006
-    np.testing.assert_allclose(_turn(_base().mode, state.base.rotate_right(state.turned_wxyz).mode), [expected, 0.0, 0.0], atol=1e-12)
+    base = Bingham(state[0]["base_M"].copy(), state[0]["base_Z"].copy())
+    np.testing.assert_allclose(_turn(_base().mode, base.rotate_right(state[0]["turned_wxyz"]).mode), [expected, 0.0, 0.0], atol=1e-12)
     # then held at the last rate from the instant it describes (1 ms before it) to the stamp at 18 ms
-    later = at(state, 18 * MS, 1 * MS)
+    later = _at(state, 18 * MS, 1 * MS)
     np.testing.assert_allclose(_turn(_base().mode, later.mode), [expected + (rate(0.016)[0] - 0.1) * 0.003, 0.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(later.Z, _base().Z, atol=1e-9)  # a right rotation keeps the concentrations
+    # a right rotation keeps the concentrations: the directions stay orthonormal, the exponent's spectrum the tick's
+    np.testing.assert_allclose(later.M.T @ later.M, np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.eigvalsh(later.C), np.sort(_base().Z), atol=1e-9)
+    np.testing.assert_allclose(later.Z, _base().Z, atol=1e-9)
 
 
 def test_the_lead_is_taken_back():
     lead = quat.from_rotvec(np.array([0.0, 0.02, -0.01]))
-    track = GyroTrack(10 * MS, (0.0, 0.0, 0.0), 10 * MS, (0.0, 0.0, 0.0))
-    state = started(_base().rotate_right(lead), lead, track, np.zeros(3))
-    assert quat.angular_distance(state.base.mode, _base().mode) < 1e-12
+    track = _gyro(last_ns=10 * MS, last_rate_rad_s=(0.0, 0.0, 0.0), covered_ns=10 * MS, held_rad=(0.0, 0.0, 0.0))
+    state = _started(_base().rotate_right(lead), lead, track, np.zeros(3))
+    assert state[0]["active"]
+    assert quat.angular_distance(Bingham(state[0]["base_M"].copy(), state[0]["base_Z"].copy()).mode, _base().mode) < 1e-12
 
 
 def test_a_gap_or_a_saturated_sample_ends_the_prediction_and_an_old_sample_changes_nothing():
-    track = GyroTrack(10 * MS, (0.1, 0.0, 0.0), 10 * MS, (0.0, 0.0, 0.0))
-    state = started(_base(), None, track, np.zeros(3))
-    assert advanced(GYRO, state, (0.1, 0.0, 0.0), 10 * MS + round(GYRO.max_interval_s * 1e9) + 1) is None
-    assert advanced(GYRO, state, (GYRO.range_rad_s, 0.0, 0.0), 12 * MS) is None
-    assert advanced(GYRO, state, (5.0, 0.0, 0.0), 9 * MS) is state
-    assert started(_base(), None, GyroTrack(10 * MS, (0.0, 0.0, 0.0), 10 * MS, (0.0, 0.0, 0.0), saturated=True), np.zeros(3)) is None
-    assert started(_base(), None, None, np.zeros(3)) is None
+    """A prediction that ends is not ``active`` (it was None) until the next tick; a sample not after the rotation's
+    end leaves the predictor's bytes as they were (it was the same state) and is its end only if it is its last sample
+    (the loop's ``last_ns == placed_ns``)."""
+    track = dict(last_ns=10 * MS, last_rate_rad_s=(0.1, 0.0, 0.0), covered_ns=10 * MS, held_rad=(0.0, 0.0, 0.0))
+    fresh = lambda: _started(_base(), None, _gyro(**track), np.zeros(3))  # noqa: E731
+    state = fresh()
+    assert state[0]["active"]
+    assert not advanced(GYRO, state, (0.1, 0.0, 0.0), 10 * MS + round(MAX_INTERVAL_S * 1e9) + 1) and not state[0]["active"]
+    state = fresh()
+    assert not advanced(GYRO, state, (RANGE_RAD_S, 0.0, 0.0), 12 * MS) and not state[0]["active"]
+    state = fresh()
+    before = state.tobytes()
+    assert not advanced(GYRO, state, (5.0, 0.0, 0.0), 9 * MS)
+    assert state.tobytes() == before
+    assert advanced(GYRO, state, (5.0, 0.0, 0.0), 10 * MS) and state.tobytes() == before  # the tick's last sample again
+    assert not _started(_base(), None, _gyro(**track, saturated=True), np.zeros(3))[0]["active"]
+    assert not _started(_base(), None, _gyro(), np.zeros(3))[0]["active"]
+    stopped = fresh()
+    stopped[0]["active"] = False
+    assert not advanced(GYRO, stopped, (0.1, 0.0, 0.0), 12 * MS)  # waiting for the next tick: nothing turns it
+    assert stopped[0]["last_ns"] == 10 * MS
+
+
+def test_the_predictors_estimates_stay_what_they_were():
+    """:class:`fuser.model.output.OutputPredictor`, as the loop drives it: an estimate read with :meth:`at` is a
+    value (the predictor turning through further samples does not change it), and the predictor turns as the
+    compiled functions do."""
+    model = FusionModel(FuserConfig())
+    src = SourceId("mavlink", 1, 1, 0)
+    for k in range(1, 11):
+        t = k * 10 * MS
+        model.step(TickInput(t, 10 * MS, [ImuSample(t, (0.0, 0.0, 0.5), (0.0, 0.0, -9.80665), None, src)], [t]))
+    predictor = model.output_predictor()
+    model.start_output(predictor)
+    assert predictor.active
+    first = predictor.at(101 * MS)
+    kept = first.M.copy(), first.Z.copy()
+    assert predictor.advance((0.0, 0.0, 0.5), 102 * MS) and predictor.advance((0.0, 0.0, 0.5), 104 * MS)
+    second = predictor.at(105 * MS)
+    np.testing.assert_array_equal(first.M, kept[0])
+    np.testing.assert_array_equal(first.Z, kept[1])
+    bias = model.state.bias.estimate_rad_s
+    np.testing.assert_allclose(_turn(first.mode, second.mode), (np.array([0.0, 0.0, 0.5]) - bias) * 0.004, atol=1e-12)  # 4 ms more
+    predictor.stop()
+    assert not predictor.active and not predictor.advance((0.0, 0.0, 0.5), 106 * MS)
 
 
 def _spin_inputs(rate_z: float, seconds: float, imu_hz: float = 400.0) -> list[tuple[ImuSample, int]]:

@@ -11,11 +11,12 @@ from core.filters import rms_angle_deg
 from drivers.samples import ImuSample
 from fuser.config import BiasSettings, FuserConfig, ModelErrorSettings, RestSettings
 from fuser.model import FusionModel
+from fuser.model.bias import variance_rad2_s2
 from fuser.model.gravity import tilt_time_constant_s
 from fuser.model.rest import detect_rest, measure_bias
-from fuser.model.state import BiasState, RestState
 from fuser.model_error import with_model_error
 from fusion_inputs import FIELD, GRAVITY_M_S2, SRC, TICK, tick
+from model_records import params, part
 
 NO_FEEDBACK = BiasSettings(feedback_enabled=False)
 
@@ -43,7 +44,7 @@ def test_rest_detection_recovers_a_known_bias_without_feedback():
     still(model, quat.from_rotvec([0.1, -0.1, 0.4]), 4.0, bias)
     assert model.state.rest.at_rest and model.counters["rest_ticks"] > 200
     np.testing.assert_allclose(model.state.bias.estimate_rad_s, bias, atol=5e-4)
-    assert math.sqrt(model.state.bias.variance_rad2_s2) < 0.001
+    assert math.sqrt(variance_rad2_s2(model.state.bias)) < 0.001
 
 
 def test_without_rest_detection_the_bias_is_not_found():
@@ -56,44 +57,52 @@ def test_without_rest_detection_the_bias_is_not_found():
 def test_the_rest_measurement_is_the_kalman_update_of_the_bias():
     """A correlated prior and the low-passed gyro with noise ``sigma^2 filter_s / dt``: the update is
     ``K = P (P + R)^-1``, ``b + K (g - b)``, ``(I - K) P`` (written out with numpy's inverse), and the stages of the
-    motion estimate pass through untouched."""
-    params = RestSettings()
+    motion estimate pass through untouched (the update writes the state's ``bias`` part in place)."""
+    settings = RestSettings()
     rng = np.random.default_rng(3)
     a = rng.normal(0.0, 0.004, (3, 3))
     prior = a @ a.T + 1e-6 * np.eye(3)
     stages = np.stack([np.eye(3)] * 3)
-    bias = BiasState(np.array([0.001, -0.002, 0.0005]), prior, stages, np.zeros((3, 3)), True, 4.0)
+    estimate = np.array([0.001, -0.002, 0.0005])
+    after = part("bias", estimate_rad_s=estimate, covariance_rad2_s2=prior, rotation_lp=stages, rotated_lp_rad_s=np.zeros((3, 3)),
+                 tilt_aided=True, tilt_settled_s=4.0)
     gyro_lp = np.array([0.006, -0.004, 0.002])
     dt = 0.01
-    after = measure_bias(params, RestState(gyro_lp, np.zeros(3), 1.0, True), bias, dt)
-    noise = params.bias_sigma_rad_s**2 * params.filter_s / dt * np.eye(3)
+    measure_bias(params(FuserConfig(rest=settings)).rest, part("rest", gyro_lp_rad_s=gyro_lp, accel_lp_m_s2=np.zeros(3), still_s=1.0,
+                                                               at_rest=True), after, dt)
+    noise = settings.bias_sigma_rad_s**2 * settings.filter_s / dt * np.eye(3)
     gain = prior @ np.linalg.inv(prior + noise)
     assert np.min(np.abs(gain)) > 1e-3  # the premise: every axis teaches every other
-    np.testing.assert_allclose(after.estimate_rad_s, bias.estimate_rad_s + gain @ (gyro_lp - bias.estimate_rad_s), rtol=1e-12)
+    np.testing.assert_allclose(after.estimate_rad_s, estimate + gain @ (gyro_lp - estimate), rtol=1e-12)
     np.testing.assert_allclose(after.covariance_rad2_s2, (np.eye(3) - gain) @ prior, rtol=1e-10, atol=1e-20)
     np.testing.assert_array_equal(after.covariance_rad2_s2, after.covariance_rad2_s2.T)
-    assert after.rotation_lp is stages and after.tilt_aided and after.tilt_settled_s == 4.0
+    np.testing.assert_array_equal(after.rotation_lp, stages)
+    np.testing.assert_array_equal(after.rotated_lp_rad_s, np.zeros((3, 3)))
+    assert after.has_lp and after.tilt_aided and after.tilt_settled_s == 4.0
 
 
 def test_the_detector_follows_its_low_passes_and_its_three_thresholds():
     """Hand-worked low-pass steps (``a = dt / filter_s``) and each of the three tests (the gyro's change, the
-    low-passed rate, the specific force's change) alone keeping the detector from rest."""
-    params = RestSettings()
+    low-passed rate, the specific force's change) alone keeping the detector from rest. Each call changes the
+    state's ``rest`` part in place: every case starts from a part of its own."""
+    settings = RestSettings()
+    rest_params = params(FuserConfig(rest=settings)).rest
     dt = 0.01
-    a = dt / params.filter_s
+    a = dt / settings.filter_s
     gyro, accel = np.array([0.001, 0.0, -0.001]), np.array([0.0, 0.0, -9.81])
-    state = RestState(np.array([0.0, 0.002, 0.0]), np.array([0.01, 0.0, -9.8]), params.min_s - dt / 2, False)
-    after = detect_rest(params, state, gyro, accel, dt)
+    gyro_lp, accel_lp = np.array([0.0, 0.002, 0.0]), np.array([0.01, 0.0, -9.8])
+    after = part("rest", gyro_lp_rad_s=gyro_lp, accel_lp_m_s2=accel_lp, still_s=settings.min_s - dt / 2, at_rest=False)
+    detect_rest(rest_params, after, tuple(gyro), tuple(accel), dt)
     np.testing.assert_allclose(after.gyro_lp_rad_s, [a * 0.001, 0.002 - a * 0.002, -a * 0.001], rtol=1e-12)
     np.testing.assert_allclose(after.accel_lp_m_s2, [0.01 - a * 0.01, 0.0, -9.8 - a * 0.01], rtol=1e-12)
-    assert after.at_rest and after.still_s == pytest.approx(params.min_s + dt / 2)
-    jump = 2.0 * params.gyro_rad_s / (1.0 - a)  # leaves its low-pass by more than the threshold
-    turning = np.array([0.0, 0.0, 1.5 * params.gyro_rad_s])  # steady, so its own low-pass follows it
+    assert after.at_rest and after.still_s == pytest.approx(settings.min_s + dt / 2)
+    jump = 2.0 * settings.gyro_rad_s / (1.0 - a)  # leaves its low-pass by more than the threshold
+    turning = np.array([0.0, 0.0, 1.5 * settings.gyro_rad_s])  # steady, so its own low-pass follows it
     for rate, force, lp in ((gyro + [jump, 0.0, 0.0], accel, None),
                             (turning, accel, turning),
-                            (gyro, accel + [0.0, 2.0 * params.accel_m_s2 / (1.0 - a), 0.0], None)):
-        moved = detect_rest(params, RestState(lp if lp is not None else state.gyro_lp_rad_s, state.accel_lp_m_s2, 5.0, True),
-                            rate, force, dt)
+                            (gyro, accel + [0.0, 2.0 * settings.accel_m_s2 / (1.0 - a), 0.0], None)):
+        moved = part("rest", gyro_lp_rad_s=lp if lp is not None else gyro_lp, accel_lp_m_s2=accel_lp, still_s=5.0, at_rest=True)
+        detect_rest(rest_params, moved, tuple(rate), tuple(force), dt)
         assert not moved.at_rest and moved.still_s == 0.0
 
 
@@ -117,8 +126,9 @@ def test_rest_detector_does_not_fire_in_motion(motion):
 
 def test_tilt_time_constant_is_short_until_the_bias_is_learnt():
     cfg = FuserConfig()
+    p = params(cfg)
     model = FusionModel(cfg)
-    tau = lambda: tilt_time_constant_s(cfg.accel, cfg.bias, model.state.bias.variance_rad2_s2)  # noqa: E731
+    tau = lambda: tilt_time_constant_s(p.accel, p.bias, variance_rad2_s2(model.state.bias))  # noqa: E731
     assert tau() == pytest.approx(math.radians(0.5) / 0.015)  # tilt_bias_error / sigma_b: fast while the bias is unknown
     still(model, quat.IDENTITY, 4.0, (0.01, 0.0, -0.01))
     assert tau() == pytest.approx(cfg.accel.lowpass_s)
@@ -130,7 +140,7 @@ def test_model_error_matches_composition_with_isotropic_noise():
     sigma = math.radians(2.0)
     z = -2.0 / sigma**2
     composed = Bingham.from_mode(quat.IDENTITY, [z, z, z]).compose(state)
-    ours = with_model_error(state, sigma**2, sigma**2)
+    ours = Bingham(*with_model_error(state.M, state.Z, sigma**2, sigma**2))
     assert rms_angle_deg(ours) == pytest.approx(rms_angle_deg(composed), rel=0.03)
     assert quat.angular_distance(ours.mode, state.mode) < 1e-12
 
@@ -138,10 +148,11 @@ def test_model_error_matches_composition_with_isotropic_noise():
 def test_model_error_widens_heading_and_tilt_separately_and_keeps_unknown_axes_unknown():
     q = quat.from_rotvec([0.0, 0.0, 0.7])  # level: body z is world down
     state = Bingham.from_mode(q, [-1e6, -1e6, -1e5])  # tilt 0.08 deg, heading 0.26 deg
-    wide = with_model_error(state, 0.0, math.radians(3.0) ** 2)
+    wide = Bingham(*with_model_error(state.M, state.Z, 0.0, math.radians(3.0) ** 2))
     assert rms_angle_deg(wide) > 2.5
     assert wide.Z[1] < -5e5  # the two tilt axes barely move
-    assert np.all(with_model_error(Bingham.uniform(), 1e-3, 1e-3).Z == 0.0)
+    uniform = Bingham.uniform()
+    assert np.all(with_model_error(uniform.M, uniform.Z, 1e-3, 1e-3)[1] == 0.0)
 
 
 def test_published_uncertainty_includes_the_configured_model_error():

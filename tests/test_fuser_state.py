@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from drivers.samples import SourceId
 from drivers.sim import SimConfig, samples, simulate
 from fuser.config import FuserConfig
 from fuser.model import FilterState, FusionModel, TickInput
+from fuser.model.state import STATE, FieldState, knot_capacity
+from model_records import field_bytes
 
 TICK = 10_000_000
 
@@ -71,19 +76,93 @@ def test_only_a_filter_state_can_be_set():
     assert isinstance(FusionModel(FuserConfig()).state, FilterState)
 
 
-def test_a_bias_state_with_a_new_estimate_keeps_every_other_field():
-    """``with_estimate`` builds the state field by field (not by ``dataclasses.replace``): every field it is not
-    given must come through, including any added later."""
-    import dataclasses
+def _bytes(state: FilterState) -> tuple:
+    """Everything ``state`` holds, its arrays as bytes (read by numpy, not by the state's own code; the record's
+    fields without its padding)."""
+    return field_bytes(state.record), state.knots_ns.tobytes(), state.knots.tobytes(), state.field, state.imu_slots, state.gnss_slots
 
-    from fuser.model.state import BiasState
 
-    old = BiasState(np.array([0.1, 0.2, 0.3]), np.diag([1e-4, 2e-4, 3e-4]), np.arange(27.0).reshape(3, 3, 3),
-                    np.arange(9.0).reshape(3, 3), True, 4.5)
-    names = {f.name for f in dataclasses.fields(BiasState)}
-    assert names == {"estimate_rad_s", "covariance_rad2_s2", "rotation_lp", "rotated_lp_rad_s", "tilt_aided", "tilt_settled_s"}
-    new = old.with_estimate(np.zeros(3), np.eye(3))
-    for name in names - {"estimate_rad_s", "covariance_rad2_s2"}:
-        assert getattr(new, name) is getattr(old, name), name
-    assert new.variance_rad2_s2 == 1.0 and old.variance_rad2_s2 == pytest.approx(2e-4, rel=1e-15)
-    assert old.with_covariance(np.eye(3) * 3.0).estimate_rad_s is old.estimate_rad_s
+def _scribble(state: FilterState) -> None:
+    """Overwrite every number ``state`` holds."""
+    state.record.view(np.uint8)[...] = 0xAB
+    state.knots_ns[...] = -1
+    state.knots[...] = np.nan
+
+
+def test_a_state_read_is_a_copy_of_its_own():
+    """Two reads are two independent values: writing into one (every byte of it) changes neither the other nor the model."""
+    model = FusionModel(FuserConfig())
+    _run(model, TICKS[:200])
+    a, b = model.state, model.state
+    held = _bytes(b)
+    assert _bytes(a) == held
+    _scribble(a)
+    assert _bytes(a) != held  # the premise: the scribble reached every array
+    assert _bytes(b) == held and _bytes(model.state) == held
+
+
+def test_a_state_set_is_copied_in():
+    """The model keeps a copy of the state it is given: the caller's value written over afterwards does not reach it,
+    and the model continues as the one it was read from."""
+    first = FusionModel(FuserConfig())
+    _run(first, TICKS[:200])
+    saved = first.state
+    held = _bytes(saved)
+    model = FusionModel(FuserConfig())
+    model.state = saved
+    _scribble(saved)
+    assert _bytes(model.state) == held
+    assert _same(_run(model, TICKS[200:300]), _run(first, TICKS[200:300]))
+
+
+def test_a_state_of_another_loop_rate_is_refused():
+    """The accelerometer's history for the GNSS pairs is a ring sized by the loop rate
+    (:func:`fuser.model.state.knot_capacity`): a state of a model at another rate does not fit, and is refused
+    before anything of it is taken."""
+    model = FusionModel(FuserConfig())
+    _run(model, TICKS[:100])
+    held = _bytes(model.state)
+    other = FusionModel(FuserConfig(rate_hz=50.0)).state
+    assert knot_capacity(FuserConfig(rate_hz=50.0)) != knot_capacity(FuserConfig())  # the premise: the rings differ
+    with pytest.raises(ValueError, match="loop rate"):
+        model.state = other
+    assert _bytes(model.state) == held
+
+
+def test_reset_forgets_everything_a_flight_taught():
+    """After a reset the state is a new model's, byte for byte: the record, the accelerometer's history, the field
+    and which IMU and GNSS stream each slot held."""
+    model = FusionModel(FuserConfig())
+    _run(model, TICKS[:450])
+    fresh = _bytes(FusionModel(FuserConfig()).state)
+    flown = model.state
+    assert field_bytes(flown.record) != fresh[0] and flown.imu_slots != ()  # the premise: the flight changed the state
+    model.reset()
+    assert _bytes(model.state) == fresh
+
+
+def test_a_copy_carries_every_field_of_the_state():
+    """Replaces the check of ``BiasState.with_estimate``, which built a state field by field (not by
+    ``dataclasses.replace``) and had to carry every field it was not given. The state is one record now, each part
+    changed in place by its own module (tests/test_fuser_state_carry.py); what is still built field by field is
+    :meth:`FilterState.copy` (every read and set of :attr:`FusionModel.state`): every field must come through, the
+    arrays as copies of their own, including any field added later (the field set is pinned here)."""
+    names = [f.name for f in dataclasses.fields(FilterState)]
+    assert names == ["record", "knots_ns", "knots", "field", "imu_slots", "gnss_slots"]
+    rng = np.random.default_rng(4)
+    capacity = knot_capacity(FuserConfig())
+    record = np.zeros(1, STATE)
+    record.view(np.uint8)[...] = rng.integers(0, 256, record.nbytes, dtype=np.uint8)
+    source = SourceId("mavlink", 1, 1, 2)
+    state = FilterState(record, rng.integers(1, 10**12, capacity), rng.normal(size=(capacity, 6)),
+                        FieldState((0.2, 0.01, 0.4), "wmm", (47.0, 8.0, 400.0), 2025.5, "gnss", True), (source,), ((source, True),))
+    copy = state.copy()
+    for name in names:
+        x, y = getattr(state, name), getattr(copy, name)
+        if isinstance(x, np.ndarray):
+            assert not np.shares_memory(x, y) and x.dtype == y.dtype and x.shape == y.shape, name
+            assert (field_bytes(x) == field_bytes(y)) if x.dtype.names else (x.tobytes() == y.tobytes()), name
+        else:
+            assert y == x, name
+    _scribble(copy)
+    assert field_bytes(state.record) != field_bytes(copy.record) and not np.isnan(state.knots).any()

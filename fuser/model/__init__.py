@@ -17,15 +17,28 @@ gravity update), :mod:`~fuser.model.field` (the reference field from the WMM), :
 innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
 :mod:`~fuser.model.body_frame` (readings in the state's body frame),
 :mod:`~fuser.model.extrapolation` (the published state carried ahead of its tick),
-:mod:`~fuser.model.state` (the persistent state), :mod:`~fuser.model.tick`
-(what goes in and out of a tick), :mod:`~fuser.model.diagnostics` (what each
-update did), :mod:`~fuser.model.vec3` (the updates' 3-vector arithmetic in plain
-floats: numpy's per-call cost was most of their time).
+:mod:`~fuser.model.output` (the output predictor between the ticks),
+:mod:`~fuser.model.state` (the persistent state, one record), :mod:`~fuser.model.params` (the parameters, one
+record), :mod:`~fuser.model.tick` (what goes in and out of a tick and between its steps),
+:mod:`~fuser.model.diagnostics` (what each update did), :mod:`~fuser.model.vec3` (3-vector arithmetic).
+
+The tick is compiled (numba): :func:`fuser.model.fusion.tick` runs a whole tick in one call, each module's
+functions compiled with it; :class:`FusionModel` is the Python around it.
 """
 
-from fuser.model.diagnostics import UpdateDiagnostic
-from fuser.model.fusion import FusionModel
-from fuser.model.state import FilterState
-from fuser.model.tick import TickInput, TickResult
+from __future__ import annotations
+
+from typing import Any
 
 __all__ = ["FilterState", "FusionModel", "TickInput", "TickResult", "UpdateDiagnostic"]
+
+_WHERE = {"FilterState": "state", "FusionModel": "fusion", "TickInput": "tick", "TickResult": "tick", "UpdateDiagnostic": "diagnostics"}
+
+
+def __getattr__(name: str) -> Any:
+    """The package's names, imported when first used (PEP 562): a module of the model imports without the compiled tick."""
+    if name not in _WHERE:
+        raise AttributeError(f"module 'fuser.model' has no attribute {name!r}")
+    import importlib
+
+    return getattr(importlib.import_module(f"fuser.model.{_WHERE[name]}"), name)

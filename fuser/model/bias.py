@@ -107,35 +107,40 @@ is added to each row's noise, so fast rotation teaches less. Motion alone
 never brings the uncertainty below ``floor_sigma_rad_s`` (the corrections'
 slowly varying errors are not white); a bias measured better at rest keeps
 its own.
+
+Compiled (numba) for the tick (:func:`fuser.model.fusion.tick`): the bias is
+the state record's ``bias`` part (:data:`fuser.model.state.BIAS`), changed in
+place by each function here; the stages' memory is ``rotation_lp`` and
+``rotated_lp_rad_s`` with ``has_lp``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from core import quaternion as quat
-from core.bingham import Bingham
-from fuser.config import BiasSettings, FuserConfig
-from fuser.model.gravity import GravityReading
-from fuser.model.heading import HeadingReading
-from fuser.model.state import BiasState, UnaidedState
-from fuser.model.unaided import unseen_variances_rad2
-from fuser.model.tick import TickContext
-from fuser.model.velocity import VelocityTrack
+from core.quaternion_kernels import rotation_rows, rotvec_between_body, rotvec_between_world
+from fuser.model import unaided as unaided_accel
+from fuser.model import vec3
+from fuser.model.diagnostics import FUSED
+from fuser.model.tick import GravityReading, HeadingReading, TickContext, VelocityTrack
 
 __all__ = ["SETTLE_TIME_CONSTANTS", "HeadingEvidence", "TiltEvidence", "integral_feedback", "learn_from_tick", "learn_in_motion",
-           "low_pass", "may_learn", "propagate", "reading_gain"]
+           "low_pass", "may_learn", "propagate", "reading_gain", "variance_rad2_s2"]
 
 SETTLE_TIME_CONSTANTS = 2.0
 """The tilt correction teaches the bias once the low-passes have followed it for this many time constants: before,
 its response is still the start's transient (a first reading, a first aided pair), not the bias's."""
 
+_NO_HEADING = np.bool_(False)
+"""``unseen_variances_rad2``'s heading flag for the tilt alone, as a numpy bool: numba types a ``False`` passed to
+a function as a literal and compiles the function for it again."""
 
-@dataclass(frozen=True, slots=True)
-class TiltEvidence:
+
+class TiltEvidence(NamedTuple):
     """One fused tilt reading as a measurement of the bias (module docstring)."""
 
     gain: float
@@ -146,8 +151,7 @@ class TiltEvidence:
     """Variance of the error of the down it corrects towards (module docstring), correlated over ``tau``."""
 
 
-@dataclass(frozen=True, slots=True)
-class HeadingEvidence:
+class HeadingEvidence(NamedTuple):
     """One fused magnetometer heading reading as a measurement of the bias (module docstring)."""
 
     gain: float
@@ -157,140 +161,179 @@ class HeadingEvidence:
     correlation_s: float
 
 
-def propagate(params: BiasSettings, state: BiasState, dt_s: float) -> BiasState:
+@njit(cache=True, nogil=True)
+def variance_rad2_s2(bias: np.record) -> float:
+    """Mean per-axis variance of the bias: the uncertainty the time constants and the process noise scale with."""
+    c = bias.covariance_rad2_s2
+    return (c[0, 0] + c[1, 1] + c[2, 2]) / 3.0
+
+
+@njit(cache=True, nogil=True)
+def propagate(params_bias: np.record, bias: np.record, dt_s: float) -> None:
     """The bias uncertainty grows by its random walk over ``dt_s``, each axis up to its initial value."""
-    walk = params.walk_rad_s_rt_s**2 * dt_s
-    covariance = state.covariance_rad2_s2.tolist()  # 3x3 in plain floats: numpy's per-call cost would dominate
+    walk = params_bias.walk_rad_s_rt_s * params_bias.walk_rad_s_rt_s * dt_s
+    c = bias.covariance_rad2_s2
     for i in range(3):
-        covariance[i][i] += walk
-    limit = params.initial_sigma_rad_s
-    scale = [min(1.0, limit / math.sqrt(covariance[i][i])) for i in range(3)]
-    if scale != [1.0, 1.0, 1.0]:  # an axis past its initial value: scaled back to it, the correlations kept
-        covariance = [[c * (si * sj) for c, sj in zip(row, scale)] for row, si in zip(covariance, scale)]
-    return state.with_covariance(np.array(covariance))
+        c[i, i] += walk
+    limit = params_bias.initial_sigma_rad_s
+    s0 = min(1.0, limit / math.sqrt(c[0, 0]))
+    s1 = min(1.0, limit / math.sqrt(c[1, 1]))
+    s2 = min(1.0, limit / math.sqrt(c[2, 2]))
+    if s0 != 1.0 or s1 != 1.0 or s2 != 1.0:  # an axis past its initial value: scaled back to it, the correlations kept
+        scale = (s0, s1, s2)
+        for i in range(3):
+            for j in range(3):
+                c[i, j] = c[i, j] * (scale[i] * scale[j])
 
 
-def _mean_variance(covariance: list[list[float]]) -> float:
-    """:attr:`BiasState.variance_rad2_s2` of a covariance given as plain floats (the same sum, in the same order)."""
-    return (covariance[0][0] + covariance[1][1] + covariance[2][2]) / 3.0
+@njit(cache=True, nogil=True)
+def _clipped(v: float, limit: float) -> float:
+    """``np.clip(v, -limit, limit)``."""
+    return min(max(v, -limit), limit)
 
 
-def _clipped(vector: list[float], limit: float) -> np.ndarray:
-    """``np.clip(vector, -limit, limit)`` of a 3-vector given as plain floats."""
-    return np.array([min(max(x, -limit), limit) for x in vector])
-
-
+@njit(cache=True, nogil=True)
 def reading_gain(prior_variance_rad2: float, sigma_rad: float) -> float:
     """Gain of a Bingham product on the axes a reading of sigma ``sigma_rad`` informs, for a prior of variance
     ``prior_variance_rad2`` on them: the mode moves by ``P / (P + sigma^2)`` of the innovation. The product adds
     the exponents (QBF paper, sec. 5, eq. 3); both concentrated, each is a Gaussian in the tangent space whose
     angle variance per axis is ``2 / |z|`` (the prior's) and ``sigma^2`` (the vector likelihood's, ``z = -2 /
     sigma^2``; unscented paper, sec. IV-B), and the product of two Gaussians moves by that fraction."""
-    total = prior_variance_rad2 + sigma_rad**2
+    total = prior_variance_rad2 + sigma_rad * sigma_rad
     return prior_variance_rad2 / total if total > 0.0 else 0.0
 
 
-def low_pass(state: BiasState, predicted_q: np.ndarray, tilt_tau_s: float, interval_s: float, aided: bool,
-             tilt_gain: float | None, heading_gain: float | None) -> BiasState:
+@njit(cache=True, nogil=True)
+def low_pass(bias: np.record, predicted_q: tuple, tilt_tau_s: float, interval_s: float, aided: bool, has_tilt_gain: bool,
+             tilt_gain: float, has_heading_gain: bool, heading_gain: float) -> None:
     """The rotation (body -> world) and the rotated estimate one more interval through the tilt correction's two
-    stages (its low-pass, time constant ``tilt_tau_s``; its gain, ``tilt_gain``: None without a tilt reading this
-    tick, the stage held) and the heading correction's one (``heading_gain``, likewise).
+    stages (its low-pass, time constant ``tilt_tau_s``; its gain, ``tilt_gain``: without a tilt reading this tick
+    (``has_tilt_gain`` False) the stage held) and the heading correction's one (``heading_gain``, likewise).
 
     ``aided``: the tilt correction is GNSS-aided's. When the correction changes (aiding starts or ends), the
     correction's own low-pass starts again from its first reading, not from the other's history: the memory here
     starts again too, and :func:`learn_in_motion` waits for it to settle."""
     if interval_s <= 0.0:  # a reading at the same time again (or a clock that went back): nothing new
-        return state
-    rotation = quat.to_matrix(predicted_q)
-    rotated = rotation @ state.estimate_rad_s
-    if state.rotation_lp is None or state.rotated_lp_rad_s is None or aided != state.tilt_aided:
-        return BiasState(state.estimate_rad_s, state.covariance_rad2_s2, np.stack([rotation, rotation, rotation]),
-                         np.stack([rotated, rotated, rotated]), aided, 0.0)
-    # each stage's rotation and rotated estimate as one row of 12 plain floats (numpy's per-call cost would dominate)
-    now = rotation.ravel().tolist() + rotated.tolist()
-    r, b = state.rotation_lp.reshape(3, 9).tolist(), state.rotated_lp_rad_s.tolist()
-    stage_1, stage_2, heading_stage = r[0] + b[0], r[1] + b[1], r[2] + b[2]
+        return
+    rotation = rotation_rows(predicted_q)
+    rotated = vec3.mat_vec(rotation, vec3.load(bias.estimate_rad_s))
+    r, b = bias.rotation_lp, bias.rotated_lp_rad_s
+    if not bias.has_lp or aided != bias.tilt_aided:
+        for stage in range(3):
+            for i in range(3):
+                b[stage, i] = rotated[i]
+                for j in range(3):
+                    r[stage, i, j] = rotation[i][j]
+        bias.has_lp, bias.tilt_aided, bias.tilt_settled_s = True, aided, 0.0
+        return
+    # each stage's rotation and rotated estimate, entry by entry: stage 1 towards now, stage 2 towards stage 1,
+    # the heading's stage towards now
     a = min(1.0, interval_s / tilt_tau_s)
-    stage_1 = [x + a * (t - x) for x, t in zip(stage_1, now)]
-    if tilt_gain is not None:
-        stage_2 = [x + tilt_gain * (t - x) for x, t in zip(stage_2, stage_1)]
-    if heading_gain is not None:
-        heading_stage = [x + heading_gain * (t - x) for x, t in zip(heading_stage, now)]
-    stages = np.array([stage_1, stage_2, heading_stage])
-    return BiasState(state.estimate_rad_s, state.covariance_rad2_s2, stages[:, :9].reshape(3, 3, 3), stages[:, 9:], state.tilt_aided,
-                     state.tilt_settled_s + interval_s)
+    for i in range(3):
+        for j in range(3):
+            now = rotation[i][j]
+            r[0, i, j] = r[0, i, j] + a * (now - r[0, i, j])
+            if has_tilt_gain:
+                r[1, i, j] = r[1, i, j] + tilt_gain * (r[0, i, j] - r[1, i, j])
+            if has_heading_gain:
+                r[2, i, j] = r[2, i, j] + heading_gain * (now - r[2, i, j])
+        now = rotated[i]
+        b[0, i] = b[0, i] + a * (now - b[0, i])
+        if has_tilt_gain:
+            b[1, i] = b[1, i] + tilt_gain * (b[0, i] - b[1, i])
+        if has_heading_gain:
+            b[2, i] = b[2, i] + heading_gain * (now - b[2, i])
+    bias.tilt_settled_s = bias.tilt_settled_s + interval_s
 
 
-def learn_in_motion(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray, tilt_tau_s: float,
-                    tilt: TiltEvidence | None, heading: HeadingEvidence | None, rate_rad_s: float, scale_error: float) -> BiasState:
+@njit(cache=True, nogil=True)
+def learn_in_motion(params_bias: np.record, bias: np.record, predicted_q: tuple, posterior_q: tuple, tilt_tau_s: float, has_tilt: bool,
+                    tilt: TiltEvidence, has_heading: bool, heading: HeadingEvidence, rate_rad_s: float, scale_error: float) -> None:
     """Kalman update of the bias with the tick's tilt correction (north and east rows, through ``LP2``) and heading
-    correction (the down row, through its single stage); call after :func:`low_pass` with the same gains.
+    correction (the down row, through its single stage); call after :func:`low_pass` with the same gains. ``tilt``
+    and ``heading`` count only with ``has_tilt`` and ``has_heading``.
 
     Each row's noise: the error ``n`` of what the correction follows, correlated over ``tau_c`` (the tilt's
     ``tau``, the magnetometer's ``correlation_s``), through the correction's own time constant ``tau_2 = T / k``,
     ``(n / max(tau_2, tau_c))^2``, plus the scale error's ``(s w)^2``, counted once per ``max(tau_2, tau_c)`` since
     consecutive corrections share it (module docstring). The uncertainty shrinks to ``floor_sigma_rad_s`` at most
-    (a bias known better from rest stays as known).
+    (a bias known better from rest stays as known). Without the stages' memory (``has_lp`` False: no interval has
+    reached :func:`low_pass` since it started again) nothing is learnt.
     """
-    assert state.rotation_lp is not None and state.rotated_lp_rad_s is not None
-    rotvec = quat.rotvec_between(predicted_q, posterior_q, "world").tolist()
-    spurious = (scale_error * rate_rad_s) ** 2  # a scale error turns the rate into a correction as a bias would
-    rows: list[int] = []
-    stage: list[int] = []
-    noise: list[float] = []
-    correction: list[float] = []
-    settled = state.tilt_settled_s >= SETTLE_TIME_CONSTANTS * tilt_tau_s
-    if settled and tilt is not None and tilt.interval_s > 0.0 and tilt.gain > 0.0:  # north and east through LP2
+    if not bias.has_lp:
+        return
+    rotvec = rotvec_between_world(predicted_q, posterior_q)
+    spurious = (scale_error * rate_rad_s) * (scale_error * rate_rad_s)  # a scale error turns the rate into a correction as a bias would
+    settled = bias.tilt_settled_s >= SETTLE_TIME_CONSTANTS * tilt_tau_s
+    tilt_rows = settled and has_tilt and tilt.interval_s > 0.0 and tilt.gain > 0.0  # north and east through LP2
+    heading_row = has_heading and heading.interval_s > 0.0 and heading.gain > 0.0  # down through the heading's stage
+    if not (tilt_rows or heading_row):
+        return
+    floor = min(params_bias.floor_sigma_rad_s * params_bias.floor_sigma_rad_s, variance_rad2_s2(bias))
+    tilt_noise = heading_noise = 0.0
+    if tilt_rows:
         held = max(tilt.interval_s / tilt.gain, tilt_tau_s)
-        w = (tilt.noise_rad2 / held**2 + spurious) * held / tilt.interval_s
-        rows, stage, noise = [0, 1], [1, 1], [w, w]
-        correction = [rotvec[0] / tilt.interval_s, rotvec[1] / tilt.interval_s]
-    if heading is not None and heading.interval_s > 0.0 and heading.gain > 0.0:  # down through the heading's stage
+        tilt_noise = (tilt.noise_rad2 / (held * held) + spurious) * held / tilt.interval_s
+    if heading_row:
         held = max(heading.interval_s / heading.gain, heading.correlation_s)
-        rows, stage = rows + [2], stage + [2]
-        noise.append(((heading.error_rad / held) ** 2 + spurious) * held / heading.interval_s)
-        correction.append(rotvec[2] / heading.interval_s)
-    if not rows:
-        return state
+        heading_noise = ((heading.error_rad / held) * (heading.error_rad / held) + spurious) * held / heading.interval_s
     # The rows' noises are independent (a diagonal R), so updating with one row at a time is the joint update
     # exactly (sequential Kalman filtering; D. Simon, "Optimal State Estimation", 2006, sec. 6.1): a scalar
-    # innovation variance per row, no matrix inverse, in plain floats (3-vectors: numpy's per-call cost would dominate).
-    estimate = state.estimate_rad_s.tolist()
-    covariance = state.covariance_rad2_s2.tolist()
-    rotation_lp, rotated_lp = state.rotation_lp.tolist(), state.rotated_lp_rad_s.tolist()
-    floor = min(params.floor_sigma_rad_s**2, state.variance_rad2_s2)
-    for row, st, r, c in zip(rows, stage, noise, correction):
-        h0, h1, h2 = rotation_lp[st][row]
-        y = rotated_lp[st][row] - c
-        ph0, ph1, ph2 = [p0 * h0 + p1 * h1 + p2 * h2 for p0, p1, p2 in covariance]  # P h^T
-        innovation_variance = h0 * ph0 + h1 * ph1 + h2 * ph2 + r  # h P h^T + r
-        gain = (ph0 / innovation_variance, ph1 / innovation_variance, ph2 / innovation_variance)
-        innovation = y - (h0 * estimate[0] + h1 * estimate[1] + h2 * estimate[2])
-        estimate = [e + k * innovation for e, k in zip(estimate, gain)]
-        covariance = [[p0 - k * ph0, p1 - k * ph1, p2 - k * ph2] for (p0, p1, p2), k in zip(covariance, gain)]  # (I - k h) P
-    learnt = [[0.5 * (covariance[i][j] + covariance[j][i]) for j in range(3)] for i in range(3)]
-    mean = _mean_variance(learnt)
+    # innovation variance per row, no matrix inverse. Rows 0 and 1 (north, east) through stage 2, row 2 (down)
+    # through the heading's stage.
+    e, P = bias.estimate_rad_s, bias.covariance_rad2_s2
+    for row in range(3):
+        if row < 2:
+            if not tilt_rows:
+                continue
+            stage, noise, correction = 1, tilt_noise, rotvec[row] / tilt.interval_s
+        else:
+            if not heading_row:
+                continue
+            stage, noise, correction = 2, heading_noise, rotvec[2] / heading.interval_s
+        h0, h1, h2 = bias.rotation_lp[stage, row, 0], bias.rotation_lp[stage, row, 1], bias.rotation_lp[stage, row, 2]
+        y = bias.rotated_lp_rad_s[stage, row] - correction
+        ph0 = P[0, 0] * h0 + P[0, 1] * h1 + P[0, 2] * h2  # P h^T
+        ph1 = P[1, 0] * h0 + P[1, 1] * h1 + P[1, 2] * h2
+        ph2 = P[2, 0] * h0 + P[2, 1] * h1 + P[2, 2] * h2
+        innovation_variance = h0 * ph0 + h1 * ph1 + h2 * ph2 + noise  # h P h^T + r
+        k0, k1, k2 = ph0 / innovation_variance, ph1 / innovation_variance, ph2 / innovation_variance
+        innovation = y - (h0 * e[0] + h1 * e[1] + h2 * e[2])
+        e[0], e[1], e[2] = e[0] + k0 * innovation, e[1] + k1 * innovation, e[2] + k2 * innovation
+        for i in range(3):  # (I - k h) P
+            k = k0 if i == 0 else (k1 if i == 1 else k2)
+            P[i, 0], P[i, 1], P[i, 2] = P[i, 0] - k * ph0, P[i, 1] - k * ph1, P[i, 2] - k * ph2
+    for i in range(3):
+        for j in range(i + 1, 3):
+            P[i, j] = P[j, i] = 0.5 * (P[i, j] + P[j, i])
+    mean = variance_rad2_s2(bias)
     if mean < floor:  # no surer than the floor (or than it was) from motion alone
-        learnt = [[x * (floor / mean) for x in row_l] for row_l in learnt]
-    return state.with_estimate(_clipped(estimate, params.max_abs_rad_s), np.array(learnt))
+        for i in range(3):
+            for j in range(3):
+                P[i, j] = P[i, j] * (floor / mean)
+    for i in range(3):
+        e[i] = _clipped(e[i], params_bias.max_abs_rad_s)
 
 
-def may_learn(params: BiasSettings, at_rest: bool, prior_doubt_deg: float) -> bool:
+@njit(cache=True, nogil=True)
+def may_learn(params_bias: np.record, at_rest: bool, prior_doubt_deg: float) -> bool:
     """Learning in motion only in motion (at rest the rest estimate is better) and after a prediction confident
     (``prior_doubt_deg``) on the axes the correction informs (the correction of a guess, a uniform start or the end
     of a gap, is not drift): the tilt's for the tilt rows (so 6-D fusion, its heading unknown, learns too), the
     whole attitude's for the heading row."""
-    return params.feedback_enabled and not at_rest and prior_doubt_deg <= params.learn_max_uncertainty_deg
+    return params_bias.feedback_enabled and not at_rest and prior_doubt_deg <= params_bias.learn_max_uncertainty_deg
 
 
-def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, posterior_q: np.ndarray, tick: TickContext,
-                    tilt_tau_s: float, interval_s: float, velocity: VelocityTrack, tilt: GravityReading | None,
-                    heading: HeadingReading | None, heading_interval_s: float, unaided: UnaidedState, attitude_in_use: bool,
-                    at_rest: bool, rate_rad_s: float, restarted: bool = False) -> BiasState:
+@njit(cache=True, nogil=True)
+def learn_from_tick(params: np.record, bias: np.record, predicted_q: tuple, posterior_q: tuple, tick: TickContext, tilt_tau_s: float,
+                    interval_s: float, velocity: VelocityTrack, has_tilt: bool, tilt: GravityReading, has_heading: bool,
+                    heading: HeadingReading, heading_interval_s: float, unaided: np.record, attitude_in_use: bool, at_rest: bool,
+                    rate_rad_s: float, restarted: bool) -> None:
     """One tick of bias learning in motion from the tick's readings (``tilt``: the gravity update's, plain or aided,
-    ``heading``: the magnetometer's, ``heading_interval_s`` after its previous one; None: none this tick), the
-    prediction ``predicted`` they corrected into ``posterior_q`` (``tick``: its doubts), ``interval_s`` after the previous
-    IMU readings.
+    ``heading``: the magnetometer's, ``heading_interval_s`` after its previous one; each only with ``has_tilt``,
+    ``has_heading``), the prediction ``predicted_q`` they corrected into ``posterior_q`` (``tick``: its doubts),
+    ``interval_s`` after the previous IMU readings; ``params`` the whole parameters record, ``bias`` and ``unaided``
+    the state's parts (``bias`` changed in place).
 
     The stages follow the rotation (:func:`low_pass`, with each fused reading's own gain). Without GNSS aiding the
     plain tilt and the heading corrections teach the bias (:func:`learn_in_motion`) where :func:`may_learn`, from a
@@ -305,40 +348,49 @@ def learn_from_tick(config: FuserConfig, state: BiasState, predicted: Bingham, p
     estimate drifted 9 deg off reporting 4."""
     aided = velocity.active
     if restarted:  # a broken strapdown frame or a fast start: the corrections that follow are the recovery's, not the bias's
-        return replace(state, rotation_lp=None, rotated_lp_rad_s=None)
+        bias.has_lp = False
+        for stage in range(3):
+            for i in range(3):
+                bias.rotated_lp_rad_s[stage, i] = 0.0
+                for j in range(3):
+                    bias.rotation_lp[stage, i, j] = 0.0
+        return
     prior_doubt_deg = tick.prior_doubt_deg
-    tilt_variance = math.radians(tick.prior_tilt_doubt_deg) ** 2
-    tilt_gain = heading_gain = None
-    if tilt is not None and tilt.exponent is not None and tilt.diagnostic is not None and tilt.diagnostic.sigma_deg is not None:
-        tilt_gain = reading_gain(0.5 * tilt_variance, math.radians(tilt.diagnostic.sigma_deg))  # per horizontal axis
-    if heading is not None and heading.exponent is not None and heading.diagnostic.sigma_deg is not None:
-        heading_variance = max(math.radians(prior_doubt_deg) ** 2 - tilt_variance, 0.0)
-        heading_gain = reading_gain(heading_variance, math.radians(heading.diagnostic.sigma_deg))
-    predicted_q = predicted.mode
-    state = low_pass(state, predicted_q, tilt_tau_s, interval_s, aided, tilt_gain, heading_gain)
-    params = config.bias
-    tilt_trusted = tilt is not None and tilt.trusted
-    if not tilt_trusted:
-        return state
+    tilt_variance = math.radians(tick.prior_tilt_doubt_deg) * math.radians(tick.prior_tilt_doubt_deg)
+    tilt_gain = heading_gain = 0.0
+    has_tilt_gain = has_tilt and tilt.fused and tilt.diagnostic.present and not math.isnan(tilt.diagnostic.sigma_rad)
+    if has_tilt_gain:
+        tilt_gain = reading_gain(0.5 * tilt_variance, tilt.diagnostic.sigma_rad)  # per horizontal axis
+    has_heading_gain = has_heading and heading.fused and not math.isnan(heading.diagnostic.sigma_rad)
+    if has_heading_gain:
+        heading_variance = max(math.radians(prior_doubt_deg) * math.radians(prior_doubt_deg) - tilt_variance, 0.0)
+        heading_gain = reading_gain(heading_variance, heading.diagnostic.sigma_rad)
+    low_pass(bias, predicted_q, tilt_tau_s, interval_s, aided, has_tilt_gain, tilt_gain, has_heading_gain, heading_gain)
+    p = params.bias
+    if not (has_tilt and tilt.trusted):
+        return
     if aided or attitude_in_use:
-        if rate_rad_s > params.learn_max_rate_rad_s or not may_learn(params, at_rest, prior_doubt_deg):
-            return state
+        if rate_rad_s > p.learn_max_rate_rad_s or not may_learn(p, at_rest, prior_doubt_deg):
+            return
         # the correction spans the ticks since the bias last learnt: in motion with GNSS, the aided readings' spacing
-        return integral_feedback(params, state, predicted_q, posterior_q, velocity.interval_s if aided and velocity.moving else interval_s)
-    tilt_evidence = heading_evidence = None
-    if (tilt is not None and tilt_gain is not None and tilt.diagnostic is not None and tilt.diagnostic.outcome == "fused"
-            and may_learn(params, at_rest, math.degrees(math.sqrt(tilt_variance)))):
-        unseen_rad2 = unseen_variances_rad2(config.accel, unaided, None)[0]
-        tilt_evidence = TiltEvidence(tilt_gain, interval_s, math.radians(config.accel.lowpass_error_deg) ** 2 + unseen_rad2)
-    if (heading is not None and heading_gain is not None and heading.diagnostic.outcome == "fused"
-            and may_learn(params, at_rest, prior_doubt_deg)):
-        heading_evidence = HeadingEvidence(heading_gain, heading_interval_s, math.radians(config.mag.error_deg), config.mag.correlation_s)
-    return learn_in_motion(params, state, predicted_q, posterior_q, tilt_tau_s, tilt_evidence, heading_evidence, rate_rad_s,
-                           config.gyro.scale_error_fraction)
+        integral_feedback(p, bias, predicted_q, posterior_q, velocity.interval_s if aided and velocity.moving else interval_s)
+        return
+    tilt_evidence, heading_evidence = TiltEvidence(0.0, 0.0, 0.0), HeadingEvidence(0.0, 0.0, 0.0, 0.0)
+    has_tilt_evidence = (has_tilt_gain and tilt.diagnostic.outcome == FUSED
+                         and may_learn(p, at_rest, math.degrees(math.sqrt(tilt_variance))))
+    if has_tilt_evidence:
+        unseen_rad2 = unaided_accel.unseen_variances_rad2(params.accel, unaided, _NO_HEADING, vec3.ZERO)[0]
+        noise = math.radians(params.accel.lowpass_error_deg) * math.radians(params.accel.lowpass_error_deg) + unseen_rad2
+        tilt_evidence = TiltEvidence(tilt_gain, interval_s, noise)
+    has_heading_evidence = has_heading_gain and heading.diagnostic.outcome == FUSED and may_learn(p, at_rest, prior_doubt_deg)
+    if has_heading_evidence:
+        heading_evidence = HeadingEvidence(heading_gain, heading_interval_s, math.radians(params.mag.error_deg), params.mag.correlation_s)
+    learn_in_motion(p, bias, predicted_q, posterior_q, tilt_tau_s, has_tilt_evidence, tilt_evidence, has_heading_evidence,
+                    heading_evidence, rate_rad_s, params.gyro.scale_error_fraction)
 
 
-def integral_feedback(params: BiasSettings, state: BiasState, predicted_q: np.ndarray, posterior_q: np.ndarray,
-                      dt_s: float) -> BiasState:
+@njit(cache=True, nogil=True)
+def integral_feedback(params_bias: np.record, bias: np.record, predicted_q: tuple, posterior_q: tuple, dt_s: float) -> None:
     """Integral feedback of the tick's correction into the bias while the corrections are not the ones the Kalman
     filter models (GNSS aiding, the autopilot's attitude; ``dt_s`` since the last such correction; module docstring).
 
@@ -349,11 +401,16 @@ def integral_feedback(params: BiasSettings, state: BiasState, predicted_q: np.nd
     time constant (the covariance scaled, its shape kept), and never raises
     it (a bias learnt at rest is known better than feedback can tell).
     """
-    correction = quat.rotvec_between(predicted_q, posterior_q, "body").tolist()
-    tau = params.time_constant_s
-    estimate = _clipped([b - c / tau for b, c in zip(state.estimate_rad_s.tolist(), correction)], params.max_abs_rad_s)
+    correction = rotvec_between_body(predicted_q, posterior_q)
+    tau = params_bias.time_constant_s
+    e = bias.estimate_rad_s
+    for i in range(3):
+        e[i] = _clipped(e[i] - correction[i] / tau, params_bias.max_abs_rad_s)
     decay = min(1.0, dt_s / tau)
-    covariance = state.covariance_rad2_s2
-    variance = state.variance_rad2_s2
-    learnt = variance - decay * max(0.0, variance - params.floor_sigma_rad_s**2)
-    return state.with_estimate(estimate, covariance * (learnt / variance if variance > 0.0 else 1.0))
+    variance = variance_rad2_s2(bias)
+    learnt = variance - decay * max(0.0, variance - params_bias.floor_sigma_rad_s * params_bias.floor_sigma_rad_s)
+    scale = learnt / variance if variance > 0.0 else 1.0
+    P = bias.covariance_rad2_s2
+    for i in range(3):
+        for j in range(3):
+            P[i, j] = P[i, j] * scale

@@ -5,42 +5,39 @@ degrees in half a 10-ms tick, which averaging in the moving frame would put
 into the tilt and heading measurements. Each reading is turned into the body
 frame of the state's time (its lag later) at the tick's rate before it is
 averaged: small-angle rotation ``v - (w lag) x v``.
+
+Compiled (numba) for the tick (:mod:`fuser.model.fusion`), which computes each
+sample's lag (seconds it lies behind the state's time) itself.
 """
 
 from __future__ import annotations
 
-from typing import Sequence
-
 import numpy as np
+from numba import njit
 
-from drivers.samples import Vec3
-
-__all__ = ["lags_s", "mean_in_state_body"]
-
-
-def lags_s(placed_ns: Sequence[int], state_ns: int) -> np.ndarray:
-    """Seconds each sample (at its time on the loop's timeline) lies behind the state's time."""
-    return np.array([(state_ns - t) * 1e-9 for t in placed_ns])
+__all__ = ["mean_in_state_body"]
 
 
-def mean_in_state_body(vectors: Sequence[Vec3], lags: np.ndarray, rate_rad_s: np.ndarray | None) -> np.ndarray:
-    """Mean of body-frame vectors, each turned by ``rate_rad_s`` (bias-corrected; None: not turned) over its lag.
-    The rotation is linear in the vector: the mean of the turned vectors turns the lag-weighted mean once."""
-    # a tick's few 3-vectors in plain floats: numpy's per-call cost would dominate
-    n = len(vectors)
+@njit(cache=True, nogil=True)
+def mean_in_state_body(vectors: np.ndarray, lags: np.ndarray, has_rate: bool, rate_rad_s: tuple) -> tuple:
+    """Mean of body-frame vectors (``(n, 3)``, ``n > 0``), each turned by ``rate_rad_s`` (bias-corrected;
+    ``has_rate`` False: not turned) over its lag (``lags``, ``(n,)`` seconds). The rotation is linear in the vector:
+    the mean of the turned vectors turns the lag-weighted mean once."""
+    n = vectors.shape[0]
     sx = sy = sz = 0.0
-    for x, y, z in vectors:
-        sx += x
-        sy += y
-        sz += z
+    for k in range(n):
+        sx += vectors[k, 0]
+        sy += vectors[k, 1]
+        sz += vectors[k, 2]
     mx, my, mz = sx / n, sy / n, sz / n
-    if rate_rad_s is None:
-        return np.array([mx, my, mz])
+    if not has_rate:
+        return mx, my, mz
     lx = ly = lz = 0.0
-    for lag, (x, y, z) in zip(lags.tolist(), vectors):
-        lx += lag * x
-        ly += lag * y
-        lz += lag * z
+    for k in range(n):
+        lag = lags[k]
+        lx += lag * vectors[k, 0]
+        ly += lag * vectors[k, 1]
+        lz += lag * vectors[k, 2]
     lx, ly, lz = lx / n, ly / n, lz / n
-    wx, wy, wz = rate_rad_s.tolist()
-    return np.array([mx - (wy * lz - wz * ly), my - (wz * lx - wx * lz), mz - (wx * ly - wy * lx)])  # mean - w x lagged mean
+    wx, wy, wz = rate_rad_s
+    return mx - (wy * lz - wz * ly), my - (wz * lx - wx * lz), mz - (wx * ly - wy * lx)  # mean - w x lagged mean

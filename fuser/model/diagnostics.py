@@ -15,9 +15,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
-__all__ = ["Outcome", "UpdateDiagnostic", "counter_name"]
+import numpy as np
+from numba import njit
+
+__all__ = ["DIAGNOSTIC", "Diagnostic", "Outcome", "UpdateDiagnostic", "counter_name", "decoded", "emit", "none", "of"]
 
 Outcome = Literal["fused", "gated", "reanchored"]
 """``fused``: in the state; ``gated``: kept out (see ``reason``); ``reanchored``: outside the gate for
@@ -84,3 +87,98 @@ _COUNTERS = {
 def counter_name(d: UpdateDiagnostic) -> str | None:
     """The counter ``d`` increments, or None (a plain fusion is not counted)."""
     return _COUNTERS.get((d.update, d.outcome, d.reason), None if d.outcome == "fused" else f"{d.update}_{d.outcome}_{d.reason}".rstrip("_"))
+
+
+# -- the compiled tick's form -----------------------------------------------------------------------------------------
+# The compiled updates return a :class:`Diagnostic` (codes and radians); the tick writes each into a record of
+# :data:`DIAGNOSTIC` (:func:`emit`) and the model turns the records into :class:`UpdateDiagnostic` (:func:`decoded`).
+
+UPDATES = ("gravity", "heading", "attitude", "velocity")
+OUTCOMES = ("fused", "gated", "reanchored")
+REASONS = ("", "norm", "innovation", "before_tilt", "dip", "no_fix", "stale", "jump", "gap", "unselected", "unconverged")
+AIDING = ("", "gnss", "gnss_horizontal", "gnss_raw")
+"""The codes: each name's index in its tuple (the update's, the outcome's, the reason's, the aided gravity's ``aiding``)."""
+
+# numpy integers, not Python ints: numba types a global Python int passed as an argument as a literal and compiles
+# the callee once per value (``diagnostics.of`` six times); an np.int64 is a plain int64.
+GRAVITY, HEADING, ATTITUDE, VELOCITY = map(np.int64, range(4))
+FUSED, GATED, REANCHORED = map(np.int64, range(3))
+(NO_REASON, NORM, INNOVATION, BEFORE_TILT, DIP, NO_FIX, STALE, JUMP, GAP, UNSELECTED, UNCONVERGED) = map(np.int64, range(11))
+NOT_AIDED, AIDED_3D, AIDED_HORIZONTAL, AIDED_RAW = map(np.int64, range(4))
+
+
+class Diagnostic(NamedTuple):
+    """One update's account in the compiled tick: codes (above), radians, NaN where :class:`UpdateDiagnostic` has None."""
+
+    present: bool
+    """False: the update made no reading this tick (no diagnostic)."""
+    update: int
+    outcome: int
+    reason: int
+    innovation_rad: float
+    sigma_rad: float
+    test_ratio: float
+    aiding: int
+    """The gravity update's aiding (``values`` ``(("aiding", ...),)``), :data:`AIDING`'s code; 0: none."""
+    accel_check: bool
+    """A velocity pair's acceleration check was made: the four values below are its ``values``."""
+    accel_innovation_m_s2: float
+    accel_gate_m_s2: float
+    interval_s: float
+    vertical: bool
+
+
+DIAGNOSTIC = np.dtype([("update", "i8"), ("outcome", "i8"), ("reason", "i8"), ("innovation_rad", "f8"), ("sigma_rad", "f8"),
+                       ("test_ratio", "f8"), ("aiding", "i8"), ("accel_check", "?"), ("accel_innovation_m_s2", "f8"),
+                       ("accel_gate_m_s2", "f8"), ("interval_s", "f8"), ("vertical", "?")], align=True)
+"""A :class:`Diagnostic` as a record of the tick's output array."""
+
+
+@njit(cache=True, nogil=True)
+def none() -> Diagnostic:
+    """No reading this tick."""
+    nan = math.nan
+    return Diagnostic(False, 0, 0, 0, nan, nan, nan, 0, False, nan, nan, nan, False)
+
+
+@njit(cache=True, nogil=True)
+def of(update: int, outcome: int, reason: int, innovation_rad: float, sigma_rad: float, test_ratio: float, aiding: int) -> Diagnostic:
+    """An update's account without an acceleration check (the form of :meth:`UpdateDiagnostic.of`; NaN for None)."""
+    nan = math.nan
+    return Diagnostic(True, update, outcome, reason, innovation_rad, sigma_rad, test_ratio, aiding, False, nan, nan, nan, False)
+
+
+@njit(cache=True, nogil=True, inline="always")  # inlined: its index starts as a literal 0 at every call site's first call
+def emit(out: np.ndarray, n: int, d: Diagnostic) -> int:
+    """Write ``d`` (if present) as record ``n`` of ``out``; the next free index."""
+    if not d.present:
+        return n
+    r = out[n]
+    r.update, r.outcome, r.reason = d.update, d.outcome, d.reason
+    r.innovation_rad, r.sigma_rad, r.test_ratio, r.aiding = d.innovation_rad, d.sigma_rad, d.test_ratio, d.aiding
+    r.accel_check, r.accel_innovation_m_s2, r.accel_gate_m_s2 = d.accel_check, d.accel_innovation_m_s2, d.accel_gate_m_s2
+    r.interval_s, r.vertical = d.interval_s, d.vertical
+    return n + 1
+
+
+def _none_if_nan(x: float) -> float | None:
+    return None if math.isnan(x) else x
+
+
+def decoded(records: np.ndarray) -> list[UpdateDiagnostic]:
+    """The :class:`UpdateDiagnostic` of each record of :data:`DIAGNOSTIC`."""
+    out = []
+    for r in records.tolist():
+        update, outcome, reason, innovation, sigma, ratio, aiding, check, accel_innovation, accel_gate, interval, vertical = r
+        values: tuple[tuple[str, Any], ...] = ()
+        if aiding:
+            values = (("aiding", AIDING[aiding]),)
+        elif check:
+            values = (("accel_innovation_m_s2", accel_innovation), ("accel_gate_m_s2", accel_gate), ("interval_s", interval),
+                      ("vertical", vertical))
+        if check:  # a velocity pair's: made by the constructor, its test ratio as is
+            out.append(UpdateDiagnostic(UPDATES[update], OUTCOMES[outcome], REASONS[reason], test_ratio=_none_if_nan(ratio), values=values))
+        else:
+            out.append(UpdateDiagnostic.of(UPDATES[update], OUTCOMES[outcome], REASONS[reason], _none_if_nan(innovation),  # type: ignore[arg-type]
+                                           _none_if_nan(sigma), _none_if_nan(ratio), values))
+    return out

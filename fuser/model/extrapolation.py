@@ -33,20 +33,24 @@ the loop takes this lead back and turns the state by the gyro's samples
 themselves (:mod:`fuser.model.output`); the lead's widening stays, and a
 tick without a usable rate (no gyro, a saturated sample) is published as
 this module carried it.
+
+:func:`lead` is compiled with numba for the tick (:func:`fuser.model.fusion.tick`)
+and reads the state's gyro track (:data:`fuser.model.state.GYRO`);
+:func:`ahead_ns` and :func:`carry_ns` are the model's, computed once.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from core import quaternion as quat
-from fuser.config import FuserConfig, GyroSettings
-from fuser.model.state import GyroTrack
+from core.quaternion_kernels import IDENTITY, from_rotvec
+from fuser.config import FuserConfig
+from fuser.model.tick import Lead
 
-__all__ = ["Lead", "ahead_ns", "carry_ns", "lead"]
+__all__ = ["ahead_ns", "carry_ns", "lead"]
 
 
 def ahead_ns(config: FuserConfig) -> int:
@@ -63,33 +67,33 @@ def carry_ns(config: FuserConfig) -> int:
     return ahead_ns(config) + round(config.extrapolation.imu_delay_ms * 1e6)
 
 
-@dataclass(frozen=True, slots=True)
-class Lead:
-    """The published state's rotation over the lead and the per-axis variance it adds."""
-
-    rotation: np.ndarray | None
-    """Body-frame rotation ``u`` (published ``x (x) u``); None: not turned."""
-    variance_rad2: float
-
-
-def lead(gyro: GyroSettings, track: GyroTrack | None, bias_rad_s: np.ndarray, tick_ns: int, ahead: int) -> Lead:
-    """The held rate (bias removed) carried from ``tick_ns`` to ``tick_ns + ahead`` (module docstring)."""
+@njit(cache=True, nogil=True)
+def lead(params: np.record, gyro: np.record, bias_rad_s: tuple, tick_ns: int, ahead: int) -> Lead:
+    """The held rate (bias removed) carried from ``tick_ns`` to ``tick_ns + ahead`` (module docstring); ``params``
+    the ``gyro`` group, ``gyro`` the state's (:data:`fuser.model.state.GYRO`, its track after the tick). Not turned
+    (``has_rotation`` False, the identity) without a held rate."""
     if ahead <= 0:
-        return Lead(None, 0.0)
+        return Lead(False, IDENTITY, 0.0)
     ahead_s = ahead * 1e-9
-    if track is None:
-        return Lead(None, (gyro.gap_rate_rad_s * ahead_s) ** 2)
+    if not gyro.has_track:
+        gap = params.gap_rate_rad_s * ahead_s
+        return Lead(False, IDENTITY, gap * gap)
+    track = gyro.track
     if track.saturated:
-        return Lead(None, (gyro.range_rad_s * ahead_s) ** 2)
-    hold_end = track.last_ns + round(gyro.max_interval_s * 1e9)
+        unknown = params.range_rad_s * ahead_s
+        return Lead(False, IDENTITY, unknown * unknown)
+    hold_end = track.last_ns + round(params.max_interval_s * 1e9)
     held_s = max(0, min(tick_ns + ahead, hold_end) - tick_ns) * 1e-9
-    gap_s = ahead_s - held_s
-    variance = (gyro.gap_rate_rad_s * gap_s) ** 2
+    gap = params.gap_rate_rad_s * (ahead_s - held_s)
+    variance = gap * gap
     if held_s == 0.0:
-        return Lead(None, variance)
+        return Lead(False, IDENTITY, variance)
     age_s = (tick_ns - track.last_ns) * 1e-9
-    variance += gyro.rate_walk_rad_s_rt_s**2 * ((age_s + held_s) ** 3 - age_s**3) / 3.0
-    (x, y, z), (bx, by, bz) = track.last_rate_rad_s, bias_rad_s.tolist()  # 3-vectors in plain floats
-    x, y, z = x - bx, y - by, z - bz
+    end_s = age_s + held_s
+    variance += params.rate_walk_rad_s_rt_s * params.rate_walk_rad_s_rt_s * (end_s * end_s * end_s - age_s * age_s * age_s) / 3.0
+    rate = track.last_rate_rad_s
+    x, y, z = rate[0] - bias_rad_s[0], rate[1] - bias_rad_s[1], rate[2] - bias_rad_s[2]
     angle = math.sqrt(x * x + y * y + z * z) * held_s
-    return Lead(quat.from_rotvec((x * held_s, y * held_s, z * held_s)) if angle > 0.0 else None, variance)
+    if angle > 0.0:
+        return Lead(True, from_rotvec(x * held_s, y * held_s, z * held_s), variance)
+    return Lead(False, IDENTITY, variance)

@@ -25,8 +25,9 @@ field.
 When the WMM's field replaces the fallback, the heading the magnetometer has
 measured so far was measured against the fallback's north: the estimate is
 turned about world down by the change of the reference's heading (the
-declination, the fallback having none), :func:`turned_heading`, so the
-evidence it holds is re-expressed, not contradicted. Fused instead, the
+declination, the fallback having none; :func:`heading_change_rad`, which the
+tick (:func:`fuser.model.fusion.tick`) turns its prediction by,
+``q -> Rz(change) (x) q``), so the evidence it holds is re-expressed, not contradicted. Fused instead, the
 sudden heading innovation would be taken for gyro drift by the bias
 feedback (measured: a 0.5 deg/s z bias learnt from a 3.6 deg declination).
 
@@ -41,17 +42,13 @@ import logging
 import math
 from typing import Iterable
 
-import numpy as np
-
 from core import earth_field
-from core import quaternion as quat
-from core.bingham import Bingham
 from drivers.samples import GnssSample
 from fuser.config import MagSettings
 from fuser.model.diagnostics import UpdateDiagnostic
 from fuser.model.state import DateSource, FieldState
 
-__all__ = ["UNIX_MIN_NS", "heading_change_rad", "turned_heading", "update_field"]
+__all__ = ["UNIX_MIN_NS", "heading_change_rad", "update_field"]
 
 log = logging.getLogger(__name__)
 
@@ -98,11 +95,3 @@ def heading_change_rad(before: FieldState, after: FieldState) -> float:
     """How far north turned between two reference fields (the change of their horizontal direction, rad)."""
     (n0, e0, _), (n1, e1, _) = before.field_ned_gauss, after.field_ned_gauss
     return math.remainder(math.atan2(e1, n1) - math.atan2(e0, n0), 2.0 * math.pi)
-
-
-def turned_heading(attitude: Bingham, change_rad: float) -> Bingham:
-    """``attitude`` re-expressed against a reference field whose north is ``change_rad`` further east: the body's
-    heading relative to the new north is the old one plus the change (``q -> Rz(change) (x) q``, world down)."""
-    if change_rad == 0.0:
-        return attitude
-    return attitude.rotate_left(quat.from_axis_angle(np.array([0.0, 0.0, 1.0]), change_rad))

@@ -1,8 +1,14 @@
 """One tick of the fusion model, from the tick's samples to the published attitude distribution.
 
-Read :meth:`FusionModel.step` top to bottom: every value it uses is either
-an argument, a setting, the persistent :class:`~fuser.model.state.FilterState`
-or a local computed above it.
+The tick is one compiled function (:func:`tick`, numba): read it top to
+bottom. Every value it uses is an argument, a parameter (``params``, the
+record of :mod:`fuser.model.params`), the persistent state (``state``, the
+record of :mod:`fuser.model.state`, each part changed in place by the
+module that owns it) or a local computed above it. :class:`FusionModel` is
+the Python around it: it lays the tick's samples out as arrays, keeps the
+reference field (:mod:`fuser.model.field`, the World Magnetic Model through
+``pygeomag``), and turns the tick's numbers back into a
+:class:`~fuser.model.tick.TickResult`.
 
 0. **Check** (:mod:`~fuser.model.imu_check`): the vehicle's IMUs against each
    other; a sample that disagrees is kept out of everything below.
@@ -10,8 +16,7 @@ or a local computed above it.
    integrated, the attitude rotated and composed with the process noise in
    closed form (progressive paper, Alg. 1).
 2. **Update**: GNSS velocity differenced into the world acceleration
-   (:mod:`~fuser.model.velocity`) and the reference field from the GNSS
-   position (:mod:`~fuser.model.field`); gravity (:mod:`~fuser.model.gravity`,
+   (:mod:`~fuser.model.velocity`); gravity (:mod:`~fuser.model.gravity`,
    or its GNSS-aided variant while fixes come), heading
    (:mod:`~fuser.model.heading`) and the autopilot's attitude
    (:mod:`~fuser.model.attitude`), each gated against the prediction. Their
@@ -33,49 +38,284 @@ every reading is turned into the body frame of that instant.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections import Counter
-from functools import lru_cache
 
 import numpy as np
+from numba import njit
 
+from core import saddlepoint
 from core.bingham import Bingham
-from core.filters import rms_angle_deg
-from core.normalization import Method
-from drivers.samples import AttitudeSample, GnssSample, ImuSample, MagSample
+from core.bingham_kernels import mode, product_parameters, rms_angle_deg, rotated_left, rotated_right
+from core.quaternion_kernels import from_array, yaw_turn
+from drivers.samples import AttitudeSample, GnssSample, ImuSample, MagSample, SourceId
 from fuser import model_error
 from fuser.config import FuserConfig
-from fuser.model import bias as bias_feedback
-from fuser.model.attitude import attitude_in_use, update_attitude
-from fuser.model.body_frame import lags_s, mean_in_state_body
-from fuser.model.diagnostics import UpdateDiagnostic, counter_name
-from fuser.model.extrapolation import ahead_ns, carry_ns, lead
-from fuser.model.field import heading_change_rad, turned_heading, update_field
-from fuser.model.gravity import tilt_time_constant_s, turn_frame, update_gravity
-from fuser.model.heading import FieldReference, heading_sigma_rad, update_heading
-from fuser.model.imu_check import check_imus
-from fuser.model.propagation import integrate_gyro, predict
-from fuser.model.rest import detect_rest, measure_bias
-from fuser.model.state import FilterState, GyroState, HeadingState, RestState, initial_state
-from fuser.model.tick import TickContext, TickInput, TickResult
-from fuser.model.unaided import absorbed, cleared, corrected, followed, learn_norm, unaided_target, unseen_variances_rad2
-from fuser.model.velocity import raw_world, tilt_doubt_deg, track_velocity, update_gravity_aided
+from fuser.model import attitude, bias, body_frame, extrapolation, gravity, heading, imu_check, propagation, rest, unaided, velocity
+from fuser.model import vec3
+from fuser.model.diagnostics import DIAGNOSTIC, UpdateDiagnostic, counter_name, decoded, emit
+from fuser.model.field import heading_change_rad, update_field
+from fuser.model.output import OutputPredictor
+from fuser.model.params import params_record
+from fuser.model.state import MAX_GNSS_STREAMS, MAX_IMUS, FilterState, initial_state
+from fuser.model.tick import GNSS_INPUT, IMU_INPUT, TICK_OUTPUT, TickContext, TickInput, TickResult
 
-__all__ = ["FusionModel"]
+__all__ = ["EVENTS", "FusionModel", "tick"]
 
+EVENTS = ("imu_disagree", "gyro_gap", "gyro_saturated", "no_gyro", "gyro_held", "gnss_lost", "rest_ticks", "gnss_restart",
+          "attitude_unused", "imu_too_many", "gnss_too_many")
+"""The tick's event counters, by code (each name's index). The last two are the Python wrapper's: samples of an IMU
+beyond :data:`~fuser.model.state.MAX_IMUS` or a GNSS stream beyond :data:`~fuser.model.state.MAX_GNSS_STREAMS` of
+the one vehicle, not fused."""
+(IMU_DISAGREE, GYRO_GAP, GYRO_SATURATED, NO_GYRO, GYRO_HELD, GNSS_LOST, REST_TICKS, GNSS_RESTART, ATTITUDE_UNUSED, IMU_TOO_MANY,
+ GNSS_TOO_MANY) = map(np.int64, range(11))  # numpy integers: a Python int would compile _event once per code (fuser.model.diagnostics)
 
 _RESTART_RAD2 = math.radians(60.0) ** 2
 """Per-axis variance added to the state when the fast start runs again: wide enough for its raw readings and
 fast-start headings to take it (unconverged, ``updates.converged_deg``), as at a cold start."""
 
-_field_reference = lru_cache(maxsize=8)(FieldReference.of)
-"""The heading update's coefficients of a reference field (computed once per field)."""
+_ZERO3 = (0.0, 0.0, 0.0)
+_NO_MAGS, _NO_ATTITUDES, _NO_GNSS = np.empty((0, 3)), np.empty((0, 4)), np.empty(0, GNSS_INPUT)
+"""A tick without such samples (most ticks): the same empty arrays each time."""
 
 
-def _multiplied(belief: Bingham, exponent: np.ndarray) -> Bingham:
-    """``belief`` times the likelihoods whose exponents sum to ``exponent``."""
-    return belief.times_exponent(exponent) if exponent.any() else belief
+@njit(cache=True, nogil=True, inline="always")  # inlined: called with a different literal code and count at each site
+def _event(codes: np.ndarray, counts: np.ndarray, n: int, code: int, count: int) -> int:
+    """Note ``count`` (> 0) events of ``code`` as pair ``n``; the next free index."""
+    if count <= 0:
+        return n
+    codes[n], counts[n] = code, count
+    return n + 1
+
+
+@njit(cache=True, nogil=True)
+def _copy_bingham(M: np.ndarray, Z: np.ndarray, M_out: np.ndarray, Z_out: np.ndarray) -> None:
+    """``M``, ``Z`` into ``M_out``, ``Z_out`` (element loops: a slice assignment's shape check costs seconds to compile)."""
+    for i in range(4):
+        Z_out[i] = Z[i]
+        for j in range(4):
+            M_out[i, j] = M[i, j]
+
+
+@njit(cache=True, nogil=True)
+def _multiplied(M: np.ndarray, Z: np.ndarray, exponent: np.ndarray) -> tuple:
+    """The Bingham ``(M, Z)`` times the likelihoods whose exponents sum to ``exponent`` (QBF paper, sec. 5, eq. 3)."""
+    for i in range(4):
+        for j in range(4):
+            if exponent[i, j] != 0.0:
+                evals, evecs = product_parameters(M, Z, exponent)
+                last = evals[3]
+                for k in range(4):  # Bingham(M, Z) = Bingham(M, Z + cI): the mode's concentration 0 (saddlepoint paper, eq. 3)
+                    evals[k] -= last
+                return evecs, evals
+    return M, Z
+
+
+@njit(cache=True, nogil=True, inline="always")  # inlined: called with a literal True and a literal False
+def _vectors(rows: np.ndarray, accel: bool) -> np.ndarray:
+    """The IMU samples' specific forces (``accel``) or fields as an ``(n, 3)`` array."""
+    out = np.empty((rows.shape[0], 3))
+    for i in range(rows.shape[0]):
+        v = rows[i].accel_m_s2 if accel else rows[i].mag_gauss
+        out[i, 0], out[i, 1], out[i, 2] = v[0], v[1], v[2]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _mag_in_state_body(imu: np.ndarray, mags: np.ndarray, lags: np.ndarray, has_rate: bool, body_rate: tuple) -> tuple:
+    """(present, field): the tick's mean magnetic field, the separate magnetometers' then the IMUs' own (those in
+    the state's body frame, :mod:`fuser.model.body_frame`), their mean if there are several."""
+    with_mag = np.empty(imu.shape[0], np.int64)
+    n = 0
+    for i in range(imu.shape[0]):
+        if imu[i].has_mag:
+            with_mag[n] = i
+            n += 1
+    count = mags.shape[0] + (1 if n else 0)
+    if count == 0:
+        return False, _ZERO3
+    sx = sy = sz = 0.0
+    for k in range(mags.shape[0]):
+        sx, sy, sz = sx + mags[k, 0], sy + mags[k, 1], sz + mags[k, 2]
+    if n:
+        chosen = imu[with_mag[:n]]
+        m = body_frame.mean_in_state_body(_vectors(chosen, False), lags[with_mag[:n]], has_rate, body_rate)
+        if count == 1:
+            return True, m
+        sx, sy, sz = sx + m[0], sy + m[1], sz + m[2]
+    return True, (sx / count, sy / count, sz / count)
+
+
+@njit(cache=True, nogil=True)
+def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.ndarray, noise_table: np.ndarray,
+         field_ned_gauss: np.ndarray, heading_change_rad: float, imu: np.ndarray, mags: np.ndarray, attitudes: np.ndarray,
+         gnss: np.ndarray, tick_ns: int, dt_ns: int, carry_ns: int, out: np.ndarray, diagnostics: np.ndarray,
+         event_codes: np.ndarray, event_counts: np.ndarray) -> None:
+    """Fuse one tick's samples into ``state`` (module docstring); the published distribution and what it is carried
+    by into ``out[0]`` (:data:`~fuser.model.tick.TICK_OUTPUT`), each update's diagnostic into ``diagnostics``
+    (:data:`~fuser.model.diagnostics.DIAGNOSTIC`), the events into ``event_codes`` / ``event_counts``
+    (:data:`EVENTS`), their counts into ``out[0]``.
+
+    ``imu`` and ``gnss`` are the tick's samples (:data:`~fuser.model.tick.IMU_INPUT`,
+    :data:`~fuser.model.tick.GNSS_INPUT`), ``mags`` the separate magnetometers' fields ``(n, 3)``, ``attitudes`` the
+    autopilot's quaternions ``(n, 4)``; ``field_ned_gauss`` the reference field and ``heading_change_rad`` how far its
+    north turned this tick (:mod:`fuser.model.field`); ``noise_table`` the process noise's coefficients
+    (:func:`fuser.model.propagation.noise_table`); ``carry_ns`` how far the published state is carried.
+    """
+    p, s, o = params[0], state[0], out[0]
+    dt = dt_ns * 1e-9
+    n_diag = n_events = 0
+    tilt_was_converged = s.gravity.converged  # before this tick: whether the plain correction below counts as absorbed
+
+    # 0. the vehicle's IMUs checked against each other: one that disagrees is kept out
+    kept, disagreeing = imu_check.check_imus(p.imu_check, s.imu_check, imu)
+    if disagreeing:
+        imu = imu[kept]
+        n_events = _event(event_codes, event_counts, n_events, IMU_DISAGREE, disagreeing)
+    check = s.imu_check
+    imu_fault = check.has_last_fault_ns and tick_ns - check.last_fault_ns <= max(p.imu_check.compare_within_s * 1e9, dt_ns)
+    has_imu = imu.shape[0] > 0
+
+    # 1. predict: the gyro over the whole tick, then the closed-form prediction
+    bias.propagate(p.bias, s.bias, dt)
+    motion = propagation.integrate_gyro(p.gyro, s.gyro, imu, tick_ns - dt_ns, tick_ns)
+    n_events = _event(event_codes, event_counts, n_events, GYRO_GAP, motion.gaps)
+    n_events = _event(event_codes, event_counts, n_events, GYRO_SATURATED, motion.saturated_samples)
+    if not has_imu:
+        n_events = _event(event_codes, event_counts, n_events, NO_GYRO, 1)
+    if motion.held:
+        n_events = _event(event_codes, event_counts, n_events, GYRO_HELD, 1)
+    prediction = propagation.predict(p.gyro, p.bias, s.attitude, s.bias, motion, dt, noise_table)
+    predicted_M, predicted_Z, predicted_moments = prediction.M, prediction.Z, prediction.moments
+    if heading_change_rad != 0.0:  # the reference field's north turned: the heading re-expressed against it (fuser.model.field)
+        turn = yaw_turn(heading_change_rad)
+        predicted_M = rotated_left(np.array(turn), predicted_M)
+    if prediction.has_rate:
+        rate = prediction.rate_rad_s
+        model_error.observe_rate(s.model_error, rate, dt, p.accel.lowpass_s)
+    else:
+        rate = s.gyro.rate_rad_s
+    unknown_rotation_s = motion.gap_s + motion.saturated_s  # of the tick without a usable rate: the strapdown frame breaks
+    frame_broken = unknown_rotation_s > 0.0
+    gravity.turn_frame(s.gravity, prediction.has_rotation, prediction.rotation, unknown_rotation_s)
+    context = TickContext(dt, prediction.variance_rad2, rms_angle_deg(predicted_moments),
+                          velocity.tilt_doubt_deg(predicted_M, predicted_moments))
+    predicted_q = mode(predicted_M)
+    has_rate = motion.known_s > 0.0
+    raw_rate = vec3.scaled(motion.raw_rotation_rad, 1.0 / motion.known_s) if has_rate else _ZERO3
+    body_rate = vec3.sub(raw_rate, vec3.load(s.bias.estimate_rad_s))
+
+    # 2. updates, gated against the prediction; their exponents add up to one product
+    M, Z = predicted_M, predicted_Z
+    exponent = np.zeros((4, 4))
+    interval = dt if not s.gyro.has_last_imu_tick_ns or not has_imu else (tick_ns - s.gyro.last_imu_tick_ns) * 1e-9
+    lags = np.empty(imu.shape[0])
+    for i in range(imu.shape[0]):
+        lags[i] = (tick_ns - imu[i].placed_ns) * 1e-9
+    accel = body_frame.mean_in_state_body(_vectors(imu, True), lags, has_rate, body_rate) if has_imu else _ZERO3
+    tau = gravity.tilt_time_constant_s(p.accel, p.bias, bias.variance_rad2_s2(s.bias))
+    track, n_diag = velocity.track_velocity(p.gnss, p.accel, p.updates, s.velocity, knots_ns, knots, gnss, s.gravity, has_imu, accel,
+                                            tick_ns, dt_ns, predicted_q, context.prior_doubt_deg, context.prior_tilt_doubt_deg, tau,
+                                            frame_broken, diagnostics, n_diag)
+    if track.lost:
+        n_events = _event(event_codes, event_counts, n_events, GNSS_LOST, 1)
+    reading = gravity.no_reading()
+    if has_imu:
+        if p.rest.enabled and has_rate:  # a vehicle GNSS sees moving is not at rest
+            if track.moving:
+                rest.reset(s.rest)
+            else:
+                rest.detect_rest(p.rest, s.rest, raw_rate, accel, interval)
+            if s.rest.at_rest:
+                n_events = _event(event_codes, event_counts, n_events, REST_TICKS, 1)
+                rest.measure_bias(p.rest, s.rest, s.bias, interval)
+        if track.active:
+            reading = velocity.update_gravity_aided(p.accel, p.gnss, p.updates, s.gravity, s.velocity, track, context, tau, predicted_q)
+        else:
+            has_world, world, world_noise = velocity.raw_world(p.gnss, p.accel, s.velocity, tick_ns)
+            reading = gravity.update_gravity(p.accel, p.updates, s.gravity, context, accel, tau, predicted_q, interval, p.mag.enabled,
+                                             has_world, world, world_noise)
+            if reading.restart:  # the fast start again: the state forgets the tilt and heading it was sure of
+                M, Z = model_error.with_model_error(M, Z, _RESTART_RAD2, _RESTART_RAD2)
+                n_events = _event(event_codes, event_counts, n_events, GNSS_RESTART, 1)
+        # an acceleration the unaided accelerometer cannot tell from gravity, as far as the estimate follows it
+        unaided.learn_norm(p.accel, s.unaided, s.gravity, accel, interval, frame_broken)
+        if not track.active:
+            target, follow_s = unaided.unaided_target(p.accel, s.gravity, interval, tau)
+            unaided.followed(p.accel, s.unaided, target, interval, follow_s)
+        elif reading.has_tilt_bound and reading.diagnostic.present and not math.isnan(reading.diagnostic.sigma_rad):
+            unaided.corrected(p.accel, s.unaided, context.prior_tilt_doubt_deg, reading.diagnostic.sigma_rad, reading.tilt_bound_rad)
+        n_diag = emit(diagnostics, n_diag, reading.diagnostic)
+        if reading.fused:
+            exponent += reading.exponent
+        if reading.apply_now:
+            M, Z = _multiplied(M, Z, exponent)
+            exponent = np.zeros((4, 4))
+    heading_reading = heading.no_reading()
+    since = dt
+    has_mag = False
+    if p.mag.enabled:
+        mag_body_rate = vec3.sub(raw_rate, vec3.load(s.bias.estimate_rad_s))  # after a bias measured at rest above
+        has_mag, mag = _mag_in_state_body(imu, mags, lags, has_rate, mag_body_rate)
+        if has_mag:
+            h = s.heading
+            since = dt if not h.has_last_reading_ns else (tick_ns - h.last_reading_ns) * 1e-9
+            h.has_last_reading_ns, h.last_reading_ns = True, tick_ns
+            sigma = heading.heading_sigma_rad(p.mag, p.bias, p.updates, s.gravity.converged, context, bias.variance_rad2_s2(s.bias), since)
+            heading_reading = heading.update_heading(p.mag, p.updates, field_ned_gauss, h, s.gravity, context, mag, mode(M), sigma)
+            n_diag = emit(diagnostics, n_diag, heading_reading.diagnostic)
+            if heading_reading.fused:
+                exponent += heading_reading.exponent
+    attitude_fused = attitude.attitude_in_use(p.attitude, s.gyro, tick_ns)
+    if attitudes.shape[0] and attitude_fused:
+        source = s.attitude_source
+        n_diag, fused = attitude.update_attitude(p.attitude, p.updates, source, attitudes, mode(M), s.gravity.tilt_known,
+                                                 vec3.load(s.gravity.down_body), context, exponent, diagnostics, n_diag)
+        if fused:
+            source.has_last_fused_ns, source.last_fused_ns = True, tick_ns
+    elif attitudes.shape[0]:
+        n_events = _event(event_codes, event_counts, n_events, ATTITUDE_UNUSED, attitudes.shape[0])
+    M, Z = _multiplied(M, Z, exponent)
+    posterior_q = mode(M)
+    # the tilt the plain update's corrections took from the accelerometer, which a false vertical would have put there
+    plain = (has_imu and reading.fused and not track.active and not reading.restart and tilt_was_converged
+             and not (attitudes.shape[0] > 0 and attitude_fused))
+    unaided.absorbed(p.accel, s.unaided, dt, tau, plain, predicted_q, posterior_q)
+    source = s.attitude_source
+    if source.has_last_fused_ns and tick_ns - source.last_fused_ns <= p.accel.lowpass_s * 1e9:
+        # the autopilot's down, fused within the tilt time constant: what the accelerometer could not see is its estimator's
+        unaided.cleared(p.accel, s.unaided)
+
+    # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
+    if has_imu:
+        bias.learn_from_tick(p, s.bias, predicted_q, posterior_q, context, tau, interval, track, has_imu, reading, has_mag,
+                             heading_reading, since, s.unaided, attitude_fused, s.rest.at_rest, rate,
+                             frame_broken or not s.gravity.converged)
+
+    # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
+    # the last sample and over the lead, an IMU kept out and, without GNSS aiding, the acceleration the norm reveals
+    ahead = extrapolation.lead(p.gyro, s.gyro, vec3.load(s.bias.estimate_rad_s), tick_ns, carry_ns)
+    widening = motion.hold_variance_rad2 + ahead.variance_rad2
+    if imu_fault:
+        widening += math.radians(p.imu_check.fault_sigma_deg) ** 2
+    unseen_tilt, unseen_heading = unaided.unseen_variances_rad2(p.accel, s.unaided, p.mag.enabled,
+                                                                (field_ned_gauss[0], field_ned_gauss[1], field_ned_gauss[2]))
+    carried_M = rotated_right(np.array(ahead.rotation), M) if ahead.has_rotation else M
+    published_M, published_Z = model_error.published(p.model_error, carried_M, Z, s.model_error.rate_sq, p.mag.enabled, widening,
+                                                     unseen_tilt, unseen_heading)
+
+    # the state at the tick's end; what was published
+    _copy_bingham(M, Z, s.attitude.M, s.attitude.Z)
+    s.gyro.rate_rad_s = rate
+    if has_imu:
+        s.gyro.has_last_imu_tick_ns, s.gyro.last_imu_tick_ns = True, tick_ns
+    _copy_bingham(published_M, published_Z, o.published_M, o.published_Z)
+    o.uncertainty_deg = rms_angle_deg(saddlepoint.moments(published_Z))
+    o.has_lead_rotation = ahead.has_rotation
+    for i in range(4):
+        o.lead_rotation[i] = ahead.rotation[i]
+    o.imu_fault = imu_fault
+    o.diagnostics, o.events = n_diag, n_events
 
 
 class FusionModel:
@@ -85,191 +325,142 @@ class FusionModel:
     set, :meth:`reset`), the reference field in use included. :meth:`step` runs one tick.
     """
 
-    def __init__(self, config: FuserConfig, method: Method = "saddlepoint") -> None:
+    def __init__(self, config: FuserConfig) -> None:
         self.config = config
-        self.method: Method = method
-        """Normalization constant behind every moment match (:mod:`core.normalization`)."""
         self.counters: Counter[str] = Counter()
         """Events so far: readings gated by reason, gyro gaps, rest ticks, ..."""
-        self._ahead_ns, self._carry_ns = ahead_ns(config), carry_ns(config)
+        self._params = params_record(config)
+        self._noise_table = propagation.noise_table()
+        self._ahead_ns, self._carry_ns = extrapolation.ahead_ns(config), extrapolation.carry_ns(config)
         self._state = initial_state(config)
+        self._field_ned_gauss = np.array(self._state.field.field_ned_gauss)
+        self._out = np.zeros(1, TICK_OUTPUT)
+        self._diagnostics = np.zeros(16, DIAGNOSTIC)
+        self._event_codes, self._event_counts = np.zeros(len(EVENTS), np.int64), np.zeros(len(EVENTS), np.int64)
 
     @property
     def state(self) -> FilterState:
-        """The persistent state after the last tick (an immutable value)."""
-        return self._state
+        """The persistent state after the last tick (a copy: it stays as it is after further ticks)."""
+        return self._state.copy()
 
     @state.setter
     def state(self, state: FilterState) -> None:
         if not isinstance(state, FilterState):
             raise TypeError(f"state must be a FilterState, got {type(state).__name__}")
-        self._state = state
+        if state.knots.shape != self._state.knots.shape:
+            raise ValueError(f"state is of a model with another loop rate or GNSS horizon: {state.knots.shape[0]} knots, "
+                             f"this model keeps {self._state.knots.shape[0]}")
+        self._state = state.copy()
+        self._field_ned_gauss = np.array(state.field.field_ned_gauss)
 
     def reset(self) -> None:
         """Back to the start: uniform attitude, bias unknown."""
         self._state = initial_state(self.config)
+        self._field_ned_gauss = np.array(self._state.field.field_ned_gauss)
 
-    def step(self, tick: TickInput) -> TickResult:
+    def output_predictor(self) -> OutputPredictor:
+        """An output predictor (:mod:`fuser.model.output`) for this model's ticks, started by :meth:`start_output`."""
+        return OutputPredictor(self._params, round(self.config.extrapolation.imu_delay_ms * 1e6))
+
+    def start_output(self, predictor: OutputPredictor) -> None:
+        """Start ``predictor`` from the last tick: its published distribution, lead, and the gyro and bias after it."""
+        predictor.start(self._out, self._state.record)
+
+    def _imu_slot(self, source: SourceId) -> int:
+        """The IMU's slot in the state's IMU check (a new IMU the next free one; -1 beyond :data:`MAX_IMUS`)."""
+        slots = self._state.imu_slots
+        if source in slots:
+            return slots.index(source)
+        if len(slots) == MAX_IMUS:
+            return -1
+        self._state.imu_slots = (*slots, source)
+        return len(slots)
+
+    def _gnss_slot(self, key: tuple[SourceId, bool]) -> int:
+        """The GNSS stream's slot in the state's velocity aiding (-1 beyond :data:`MAX_GNSS_STREAMS`); a new stream
+        ranks the slots again by (filtered, source), the order in which one of several fresh streams is chosen
+        (:mod:`fuser.model.velocity`)."""
+        slots = self._state.gnss_slots
+        if key in slots:
+            return slots.index(key)
+        if len(slots) == MAX_GNSS_STREAMS:
+            return -1
+        slots = self._state.gnss_slots = (*slots, key)
+        ranks = sorted(range(len(slots)), key=lambda i: (slots[i][1], slots[i][0]))
+        for rank, i in enumerate(ranks):
+            self._state.record[0]["velocity"]["stream_rank"][i] = rank
+        return len(slots) - 1
+
+    def _inputs(self, tick_input: TickInput) -> tuple[list, list, list, list, list[GnssSample], list[tuple[str, int]]]:
+        """The tick's samples as the compiled tick's rows (IMU, magnetometer, attitude, GNSS), the GNSS fixes, and the
+        samples of an IMU or GNSS stream beyond the state's slots (counted, not fused)."""
+        placed = tick_input.placed_ns
+        if placed is None:
+            placed = [x.t_ns for x in tick_input.samples]
+        imu_rows: list = []
+        mag_rows: list = []
+        attitude_rows: list = []
+        gnss_rows: list = []
+        fixes: list[GnssSample] = []
+        dropped: list[tuple[str, int]] = []
+        for x, t in zip(tick_input.samples, placed):
+            kind = type(x)
+            if kind is ImuSample:
+                slot = self._imu_slot(x.source)
+                if slot < 0:
+                    dropped.append((EVENTS[IMU_TOO_MANY], 1))
+                    continue
+                mag = x.mag_gauss
+                imu_rows.append((t, x.gyro_rad_s, x.accel_m_s2, mag is not None, _ZERO3 if mag is None else mag, slot))
+            elif kind is MagSample:
+                mag_rows.append(x.mag_gauss)
+            elif kind is AttitudeSample:
+                attitude_rows.append(x.q_wxyz)
+            elif kind is GnssSample:
+                fixes.append(x)
+                slot = self._gnss_slot((x.source, x.filtered))
+                if slot < 0:
+                    dropped.append((EVENTS[GNSS_TOO_MANY], 1))
+                    continue
+                accuracy = x.speed_accuracy_m_s
+                gnss_rows.append((t, x.fix_type, x.vel_ned_m_s is not None, x.vel_ned_m_s or _ZERO3, x.vertical_velocity,
+                                  accuracy is not None, math.nan if accuracy is None else accuracy, x.filtered, slot))
+        return imu_rows, mag_rows, attitude_rows, gnss_rows, fixes, dropped
+
+    def step(self, tick_input: TickInput) -> TickResult:
         """Fuse the samples of one tick (:class:`~fuser.model.tick.TickInput`)."""
         cfg, s = self.config, self._state
-        dt = tick.dt_ns * 1e-9
-        placed = [x.t_ns for x in tick.samples] if tick.placed_ns is None else tick.placed_ns
-        imu: list[tuple[ImuSample, int]] = []
-        gnss: list[tuple[GnssSample, int]] = []
-        attitudes: list[AttitudeSample] = []
-        for x, t in zip(tick.samples, placed):
-            if isinstance(x, ImuSample):
-                imu.append((x, t))
-            elif isinstance(x, GnssSample):
-                gnss.append((x, t))
-            elif isinstance(x, AttitudeSample):
-                attitudes.append(x)
-        events: list[str] = []
-
-        # 0. the vehicle's IMUs checked against each other: one that disagrees is kept out
-        imu_samples, imu_placed = [x for x, _ in imu], [t for _, t in imu]
-        imu_check, kept, disagreeing = check_imus(cfg.imu_check, s.imu_check, imu_samples, imu_placed)
-        if disagreeing:
-            imu = [imu[i] for i in kept]
-            imu_samples, imu_placed = [x for x, _ in imu], [t for _, t in imu]
-            events += ["imu_disagree"] * disagreeing
-        imu_fault = imu_check.last_fault_ns is not None and tick.t_ns - imu_check.last_fault_ns <= max(cfg.imu_check.compare_within_s * 1e9, tick.dt_ns)
-
-        # 1. predict: the gyro over the whole tick, then the closed-form prediction
-        bias = bias_feedback.propagate(cfg.bias, s.bias, dt)
-        track, motion = integrate_gyro(cfg.gyro, s.gyro.track, imu_samples, imu_placed, tick.t_ns - tick.dt_ns, tick.t_ns)
-        events += ["gyro_gap"] * motion.gaps + ["gyro_saturated"] * motion.saturated_samples
-        if not imu:
-            events.append("no_gyro")
-        if motion.held:
-            events.append("gyro_held")
-        prediction = predict(cfg.gyro, cfg.bias, s.attitude, bias, motion, dt, self.method)
+        imu_rows, mag_rows, attitude_rows, gnss_rows, fixes, dropped = self._inputs(tick_input)
         # the reference field: the WMM's at the first GNSS position (if not configured); the heading turned with its north
-        field, field_diagnostic = update_field(cfg.mag, s.field, [x for x, _ in gnss], tick.t_ns)
-        if cfg.mag.enabled and field.field_ned_gauss != s.field.field_ned_gauss:
-            prediction = dataclasses.replace(prediction, attitude=turned_heading(prediction.attitude, heading_change_rad(s.field, field)))
-        if prediction.rate_rad_s is None:
-            rate, error_state = s.gyro.rate_rad_s, s.model_error
-        else:
-            rate = prediction.rate_rad_s
-            error_state = model_error.observe_rate(s.model_error, rate, dt, cfg.accel.lowpass_s)
-        unknown_rotation_s = motion.gap_s + motion.saturated_s  # of the tick without a usable rate: the strapdown frame breaks
-        gravity = turn_frame(s.gravity, prediction.rotation, unknown_rotation_s)
-        context = TickContext(dt, prediction.variance_rad2, rms_angle_deg(prediction.attitude, self.method),
-                              tilt_doubt_deg(prediction.attitude, self.method))
-        predicted_q = prediction.attitude.mode
-        raw_rate = motion.raw_rate_rad_s
-        body_rate = None if raw_rate is None else raw_rate - bias.estimate_rad_s
-
-        # 2. updates, gated against the prediction; their exponents add up to one product
-        belief, exponent = prediction.attitude, np.zeros((4, 4))
-        diagnostics: list[UpdateDiagnostic] = []
-        rest, heading, unaided = s.rest, s.heading, s.unaided
-        reading, h, since = None, None, dt  # the tick's readings, for the bias (step 3)
-        interval = dt if s.gyro.last_imu_tick_ns is None or not imu else (tick.t_ns - s.gyro.last_imu_tick_ns) * 1e-9
-        if field_diagnostic is not None:
-            diagnostics.append(field_diagnostic)
-        lags = lags_s(imu_placed, tick.t_ns)
-        accel = mean_in_state_body([x.accel_m_s2 for x in imu_samples], lags, body_rate) if imu else None
-        tau = tilt_time_constant_s(cfg.accel, cfg.bias, bias.variance_rad2_s2)
-        velocity = track_velocity(cfg.gnss, cfg.accel, cfg.updates, s.velocity, gnss, gravity, accel, tick.t_ns, tick.dt_ns,
-                                  predicted_q, context.prior_doubt_deg, context.prior_tilt_doubt_deg, tau, unknown_rotation_s > 0.0)
-        diagnostics += velocity.diagnostics
-        events += velocity.events
-        if accel is not None:
-            if cfg.rest.enabled and raw_rate is not None:  # a vehicle GNSS sees moving is not at rest
-                rest = RestState() if velocity.moving else detect_rest(cfg.rest, rest, raw_rate, accel, interval)
-                if rest.at_rest:
-                    events.append("rest_ticks")
-                    bias = measure_bias(cfg.rest, rest, bias, interval)
-            if velocity.active:
-                reading = update_gravity_aided(cfg.accel, cfg.gnss, cfg.updates, gravity, velocity, context, tau, predicted_q)
-            else:
-                reading = update_gravity(cfg.accel, cfg.updates, gravity, context, accel, tau, predicted_q, interval, cfg.mag.enabled,
-                                         raw_world(cfg.gnss, cfg.accel, velocity.state, tick.t_ns))
-                if reading.restart:  # the fast start again: the state forgets the tilt and heading it was sure of
-                    belief = model_error.with_model_error(belief, _RESTART_RAD2, _RESTART_RAD2)
-                    events.append("gnss_restart")
-            gravity = reading.state
-            # an acceleration the unaided accelerometer cannot tell from gravity, as far as the estimate follows it
-            unaided = learn_norm(cfg.accel, unaided, gravity, accel, interval, unknown_rotation_s > 0.0)
-            if not velocity.active:
-                target, follow_s = unaided_target(cfg.accel, gravity, interval, tau)
-                unaided = followed(cfg.accel, unaided, target, interval, follow_s)
-            elif reading.tilt_bound_rad is not None and reading.diagnostic is not None and reading.diagnostic.sigma_deg is not None:
-                unaided = corrected(cfg.accel, unaided, context.prior_tilt_doubt_deg, reading.diagnostic.sigma_deg,
-                                    reading.tilt_bound_rad)
-            if reading.diagnostic is not None:
-                diagnostics.append(reading.diagnostic)
-            if reading.exponent is not None:
-                exponent = exponent + reading.exponent
-            if reading.apply_now:
-                belief, exponent = _multiplied(belief, exponent), np.zeros((4, 4))
-        mag = self._mag_in_state_body(tick, imu_samples, lags, None if raw_rate is None else raw_rate - bias.estimate_rad_s)
-        if mag is not None:
-            since = dt if heading.last_reading_ns is None else (tick.t_ns - heading.last_reading_ns) * 1e-9
-            heading = HeadingState(heading.gated_s, tick.t_ns)
-            sigma = heading_sigma_rad(cfg.mag, cfg.bias, cfg.updates, gravity.converged, context, bias.variance_rad2_s2, since)
-            h = update_heading(cfg.mag, cfg.updates, _field_reference(field.field_ned_gauss), heading, gravity, context, mag, belief.mode, sigma)
-            heading = h.state
-            diagnostics.append(h.diagnostic)
-            if h.exponent is not None:
-                exponent = exponent + h.exponent
-        attitude_source = s.attitude_source
-        attitude_fused = attitude_in_use(cfg.attitude, track, tick.t_ns)
-        if attitudes and attitude_fused:
-            a = update_attitude(cfg.attitude, cfg.updates, attitude_source, attitudes, belief.mode,
-                                gravity.down_body if gravity.tilt_known else None, context)
-            attitude_source = a.state
-            for e in a.exponents:
-                exponent = exponent + e
-            diagnostics += a.diagnostics
-            if a.exponents:
-                attitude_source = dataclasses.replace(attitude_source, last_fused_ns=tick.t_ns)
-        elif attitudes:
-            events += ["attitude_unused"] * len(attitudes)
-        posterior = _multiplied(belief, exponent)
-        # the tilt the plain update's corrections took from the accelerometer, which a false vertical would have put there
-        plain = (reading is not None and reading.exponent is not None and not velocity.active and not reading.restart
-                 and s.gravity.converged and not (attitudes and attitude_fused))
-        unaided = absorbed(cfg.accel, unaided, dt, tau, (predicted_q, posterior.mode) if plain else None)
-        if attitude_source.last_fused_ns is not None and tick.t_ns - attitude_source.last_fused_ns <= cfg.accel.lowpass_s * 1e9:
-            # the autopilot's down, fused within the tilt time constant: what the accelerometer could not see is its estimator's
-            unaided = cleared(cfg.accel, unaided)
-
-        # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
-        if imu:
-            bias = bias_feedback.learn_from_tick(cfg, bias, prediction.attitude, posterior.mode, context, tau, interval,
-                                                 velocity, reading, h, since, unaided, attitude_fused,
-                                                 rest.at_rest, rate, unknown_rotation_s > 0.0 or not gravity.converged)
-
-        # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
-        # the last sample and over the lead, an IMU kept out and, without GNSS aiding, the acceleration the norm reveals
-        ahead = lead(cfg.gyro, track, bias.estimate_rad_s, tick.t_ns, self._carry_ns)
-        widening = motion.hold_variance_rad2 + ahead.variance_rad2 + (math.radians(cfg.imu_check.fault_sigma_deg) ** 2 if imu_fault else 0.0)
-        unseen_rad2 = unseen_variances_rad2(cfg.accel, unaided, field.field_ned_gauss if cfg.mag.enabled else None)
-        carried = posterior if ahead.rotation is None else posterior.rotate_right(ahead.rotation)
-        published = model_error.published(cfg.model_error, carried, error_state.rate_sq, cfg.mag.enabled, widening, unseen_rad2)
-
-        self._state = FilterState(attitude=posterior, bias=bias, gyro=GyroState(track, rate, tick.t_ns if imu else s.gyro.last_imu_tick_ns),
-                                  rest=rest, gravity=gravity, heading=heading, attitude_source=attitude_source, imu_check=imu_check,
-                                  model_error=error_state, velocity=velocity.state, field=field, unaided=unaided)
-        events += [c for c in map(counter_name, diagnostics) if c is not None]
-        if events:
-            self.counters.update(events)
-        return TickResult(published, rms_angle_deg(published, self.method), tuple(diagnostics), dict(self.counters), self._ahead_ns,
-                          ahead.rotation, imu_fault)
-
-    def _mag_in_state_body(self, tick: TickInput, imu: list[ImuSample], lags: np.ndarray, body_rate: np.ndarray | None) -> np.ndarray | None:
-        """The tick's mean magnetic field (separate magnetometers, then the IMUs' own, in the state's body
-        frame), or None without one or with the magnetometer off; ``lags`` are the IMU samples' before the tick."""
-        if not self.config.mag.enabled:
-            return None
-        mags: list = [x.mag_gauss for x in tick.samples if isinstance(x, MagSample)]
-        with_mag = [i for i, x in enumerate(imu) if x.mag_gauss is not None]
-        if with_mag:
-            mags.append(mean_in_state_body([imu[i].mag_gauss for i in with_mag], lags if len(with_mag) == len(imu) else lags[with_mag],
-                                           body_rate))
-        if not mags:
-            return None
-        return np.asarray(mags[0], dtype=float) if len(mags) == 1 else np.mean(mags, axis=0)
+        change = 0.0
+        field_diagnostic = None
+        if fixes or not s.field.reported:
+            field, field_diagnostic = update_field(cfg.mag, s.field, fixes, tick_input.t_ns)
+            if field.field_ned_gauss != s.field.field_ned_gauss:
+                change = heading_change_rad(s.field, field) if cfg.mag.enabled else 0.0
+                self._field_ned_gauss = np.array(field.field_ned_gauss)
+            s.field = field
+        capacity = len(gnss_rows) + len(attitude_rows) + 4
+        if capacity > self._diagnostics.shape[0]:
+            self._diagnostics = np.zeros(2 * capacity, DIAGNOSTIC)
+        tick(self._params, s.record, s.knots_ns, s.knots, self._noise_table, self._field_ned_gauss, change,
+             np.array(imu_rows, IMU_INPUT), np.array(mag_rows, float).reshape(-1, 3) if mag_rows else _NO_MAGS,
+             np.array(attitude_rows, float).reshape(-1, 4) if attitude_rows else _NO_ATTITUDES,
+             np.array(gnss_rows, GNSS_INPUT) if gnss_rows else _NO_GNSS, tick_input.t_ns, tick_input.dt_ns, self._carry_ns, self._out,
+             self._diagnostics, self._event_codes, self._event_counts)
+        o = self._out[0]
+        n_events = o["events"]
+        updates: list[UpdateDiagnostic] = [] if field_diagnostic is None else [field_diagnostic]
+        updates += decoded(self._diagnostics[: o["diagnostics"]])
+        counters = self.counters
+        for code, n in zip(self._event_codes[:n_events].tolist(), self._event_counts[:n_events].tolist()):
+            counters[EVENTS[code]] += n
+        for name, n in dropped:
+            counters[name] += n
+        for d in updates:
+            name = counter_name(d)
+            if name is not None:
+                counters[name] += 1
+        published = Bingham._trusted(o["published_M"].copy(), o["published_Z"].copy())
+        return TickResult(published, float(o["uncertainty_deg"]), tuple(updates), dict(counters), self._ahead_ns,
+                          o["lead_rotation"].copy() if o["has_lead_rotation"] else None, bool(o["imu_fault"]))

@@ -13,34 +13,40 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from fuser.config import UpdateSettings
-from fuser.model.diagnostics import Outcome
+import numpy as np
+from numba import njit
+
+from fuser.model.diagnostics import FUSED, GATED, REANCHORED
 
 __all__ = ["GateVerdict", "fast_start_sigma_rad", "innovation_gate"]
 
 
 class GateVerdict(NamedTuple):
-    outcome: Outcome
+    outcome: int
+    """:data:`fuser.model.diagnostics.OUTCOMES`' code."""
     gated_s: float
     """Seconds of continuous gating after this reading (0 once fused or re-anchored)."""
     test_ratio: float
     """``(innovation / gate)^2`` (PX4's test ratio): above 1 outside the gate."""
 
 
-def innovation_gate(params: UpdateSettings, gated_s: float, innovation_rad: float, sigma_rad: float,
-                    prior_doubt_deg: float, dt_s: float) -> GateVerdict:
-    """Verdict on one reading, given how long this update has been gated (``gated_s``) before it."""
+@njit(cache=True, nogil=True)
+def innovation_gate(params: np.record, gated_s: float, innovation_rad: float, sigma_rad: float, prior_doubt_deg: float,
+                    dt_s: float) -> GateVerdict:
+    """Verdict on one reading, given how long this update has been gated (``gated_s``) before it; ``params`` the
+    ``updates`` group (:mod:`fuser.model.params`)."""
     gate = params.innovation_gate_sigma * math.hypot(sigma_rad, math.radians(prior_doubt_deg))
-    ratio = (innovation_rad / gate) ** 2
+    ratio = (innovation_rad / gate) * (innovation_rad / gate)
     if innovation_rad <= gate:
-        return GateVerdict("fused", 0.0, ratio)
+        return GateVerdict(FUSED, 0.0, ratio)
     gated_s += dt_s
     if gated_s >= params.reanchor_after_s:
-        return GateVerdict("reanchored", 0.0, ratio)
-    return GateVerdict("gated", gated_s, ratio)
+        return GateVerdict(REANCHORED, 0.0, ratio)
+    return GateVerdict(GATED, gated_s, ratio)
 
 
-def fast_start_sigma_rad(params: UpdateSettings, sigma_rad: float, interval_s: float) -> float:
+@njit(cache=True, nogil=True)
+def fast_start_sigma_rad(params: np.record, sigma_rad: float, interval_s: float) -> float:
     """The sigma of a fast-start reading (``accel.sigma_rad``, ``mag.sigma_rad``: per reading
     ``updates.fast_start_interval_s`` apart) taken ``interval_s`` after the previous one: readings closer together
     count for less, ``sigma sqrt(fast_start_interval_s / interval)``, so that the fast start gathers the same

@@ -7,7 +7,7 @@ centripetal accelerations average out over the tilt time constant, gravity
 does not, and rotation does not smear the filter. The filtered vector, seen
 in the current body frame, is the measurement of down, an exact Bingham
 likelihood in the attitude (Davenport's K,
-:func:`core.observations.vector_exponent`; unscented paper, sec. IV-B).
+:func:`core.observations.vector_exponent`, compiled as ``_davenport``; unscented paper, sec. IV-B).
 
 Consecutive filtered readings are strongly correlated, so they must not be
 counted as independent: the sigma is set so that the correction time
@@ -46,81 +46,62 @@ state's tilt and heading widened, unconverged, the magnetometer a whole vector,
 While GNSS velocity aids it, the velocity-aided variant beside this one
 (:func:`fuser.model.velocity.update_gravity_aided`: the world acceleration
 from GNSS velocity taken out of the specific force, both low-passed alike)
-gives the :class:`GravityReading` instead.
+gives the :class:`~fuser.model.tick.GravityReading` instead.
+
+Compiled (numba) for the tick (:mod:`fuser.model.fusion`): the memory is the
+``gravity`` part of the state record (:data:`fuser.model.state.GRAVITY`),
+changed in place; vectors are tuples (:mod:`fuser.model.vec3`).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from core import quaternion as quat
-from core.observations import vector_exponent
-from drivers.samples import Vec3
-from fuser.config import AccelSettings, BiasSettings, UpdateSettings
-from fuser.model.diagnostics import UpdateDiagnostic
-from fuser.model import vec3
+from core.observations import _davenport
+from core.quaternion_kernels import from_array, multiply, normalize, rotation_rows
+from fuser.model import diagnostics, vec3
+from fuser.model.diagnostics import AIDED_RAW, FUSED, GATED, GRAVITY, INNOVATION, NO_REASON, NORM, NOT_AIDED
 from fuser.model.gate import fast_start_sigma_rad, innovation_gate
-from fuser.model.state import GravityState
-from fuser.model.tick import TickContext
+from fuser.model.tick import GravityReading, TickContext
 
-__all__ = ["DOWN_NED", "GnssWorld", "GravityReading", "tilt_time_constant_s", "turn_frame", "update_gravity"]
+__all__ = ["DOWN_NED", "no_reading", "tilt_time_constant_s", "turn_frame", "update_gravity"]
 
-DOWN_NED = np.array([0.0, 0.0, 1.0])
+DOWN_NED = (0.0, 0.0, 1.0)
 """World down in NED: the reference direction of the gravity measurement (a frame convention, not a tuning)."""
-_DOWN = (0.0, 0.0, 1.0)
-""":data:`DOWN_NED` in floats (:mod:`fuser.model.vec3`)."""
-_DOWN_NED_READ_ONLY = np.array(_DOWN)
-_DOWN_NED_READ_ONLY.setflags(write=False)  # shared by every state that measured down
-_GNSS_RAW = (("aiding", "gnss_raw"),)
 
 
-class GnssWorld(NamedTuple):
-    """What a raw reading measures in the world while GNSS fixes come (:func:`fuser.model.velocity.raw_world`)."""
-
-    vector_m_s2: np.ndarray
-    """``g e_z - a`` (NED), ``a`` the vehicle's acceleration from GNSS velocity."""
-    noise_m_s2: float
-    """One-sigma noise per axis of ``a``."""
-
-
-@dataclass(frozen=True, slots=True)
-class GravityReading:
-    """One tick's gravity update."""
-
-    state: GravityState
-    exponent: np.ndarray | None
-    """Likelihood exponent to multiply into the state (None: nothing fused)."""
-    apply_now: bool
-    """The first tilt ever measured: apply it before the heading update, which needs to know which way is down."""
-    trusted: bool
-    """The accelerometer was converged and well inside its norm gate: the bias feedback may learn this tick."""
-    diagnostic: UpdateDiagnostic | None
-    """None: no reading this tick (GNSS-aided, between two fixes)."""
-    tilt_bound_rad: float | None = None
-    """A GNSS-aided reading's bound on the prediction's tilt error: its innovation plus twice its noise (the GNSS
-    velocity's, differenced and low-passed; not the correction-time sigma). None for the plain update."""
-    restart: bool = False
-    """The fast start runs again: the state had converged on raw readings the GNSS acceleration shows wrong."""
+@njit(cache=True, nogil=True, inline="always")  # inlined: called with literal flags and with variables
+def _store_lp(gravity: np.record, has_lp: bool, lp_m_s2: tuple, has_raw_mean: bool, raw_mean_m_s2: tuple, raw_s: float) -> None:
+    """The low-pass and the raw readings' mean into ``gravity`` (zeros where absent)."""
+    gravity.has_accel_lp = has_lp
+    vec3.store(gravity.accel_lp_m_s2, lp_m_s2 if has_lp else vec3.ZERO)
+    gravity.has_raw_mean = has_raw_mean
+    vec3.store(gravity.raw_mean_m_s2, raw_mean_m_s2 if has_raw_mean else vec3.ZERO)
+    gravity.raw_s = raw_s
 
 
-def turn_frame(state: GravityState, rotation: np.ndarray | None, gap_s: float) -> GravityState:
-    """The strapdown frame after the tick's gyro rotation. A gap in the gyro (``gap_s`` of the tick without a
-    rate) breaks the frame: the body turned by an unknown rotation, so the low-pass's memory is dropped and the
-    update starts again as before convergence (raw readings until the state is sure again), their mean from the next."""
-    q = state.q_strapdown if rotation is None else quat.normalize(quat.multiply(state.q_strapdown, rotation))
-    broken = gap_s > 0.0  # the raw readings' mean too, converged or not
-    return GravityState(q_strapdown=q, accel_lp_m_s2=None if broken else state.accel_lp_m_s2, down_body=state.down_body,
-                        converged=not broken and state.converged, tilt_known=state.tilt_known, gated_s=state.gated_s,
-                        raw_mean_m_s2=None if broken else state.raw_mean_m_s2, raw_s=0.0 if broken else state.raw_s,
-                        measured_body=state.measured_body, gnss_checked=state.gnss_checked, measured_world=state.measured_world)
+@njit(cache=True, nogil=True)
+def turn_frame(gravity: np.record, has_rotation: bool, rotation: tuple, gap_s: float) -> None:
+    """The strapdown frame after the tick's gyro rotation (``has_rotation`` False: none known), in place. A gap in
+    the gyro (``gap_s`` of the tick without a rate) breaks the frame: the body turned by an unknown rotation, so the
+    low-pass's memory is dropped and the update starts again as before convergence (raw readings until the state is
+    sure again), their mean from the next."""
+    if has_rotation:
+        q = normalize(multiply(from_array(gravity.q_strapdown), rotation))
+        for i in range(4):
+            gravity.q_strapdown[i] = q[i]
+    if gap_s > 0.0:  # the raw readings' mean too, converged or not
+        _store_lp(gravity, False, vec3.ZERO, False, vec3.ZERO, 0.0)
+        gravity.converged = False
 
 
-def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_variance_rad2_s2: float) -> float:
-    """Tilt-correction (and low-pass) time constant for the current bias uncertainty.
+@njit(cache=True, nogil=True)
+def tilt_time_constant_s(params: np.record, bias: np.record, bias_variance_rad2_s2: float) -> float:
+    """Tilt-correction (and low-pass) time constant for the current bias uncertainty (``params`` the ``accel``
+    group, ``bias`` the ``bias`` group of :mod:`fuser.model.params`).
 
     A residual bias ``b`` makes the tilt lag by ``b tau`` behind a correction
     loop of time constant ``tau``; a longer ``tau`` lets less linear
@@ -131,61 +112,77 @@ def tilt_time_constant_s(params: AccelSettings, bias: BiasSettings, bias_varianc
     return min(params.lowpass_s, math.radians(params.tilt_bias_error_deg) / math.sqrt(max(bias_variance_rad2_s2, bias.min_variance_rad2_s2)))
 
 
-def update_gravity(params: AccelSettings, updates: UpdateSettings, state: GravityState, tick: TickContext, accel_body_m_s2: np.ndarray,
-                   tau_s: float, predicted_q: np.ndarray, interval_s: float, heading_measured: bool = True,
-                   gnss: GnssWorld | None = None) -> GravityReading:
+@njit(cache=True, nogil=True)
+def no_reading() -> GravityReading:
+    """No gravity reading this tick (no IMU sample): nothing fused, no diagnostic."""
+    return GravityReading(False, np.zeros((4, 4)), False, False, diagnostics.none(), False, 0.0, False)
+
+
+@njit(cache=True, nogil=True, inline="always")  # inlined: called with literal flags and with variables
+def _reading(fused: bool, exponent: np.ndarray, apply_now: bool, trusted: bool, diagnostic: diagnostics.Diagnostic,
+             restart: bool) -> GravityReading:
+    """A plain update's reading (no tilt bound: that is the GNSS-aided one's)."""
+    return GravityReading(fused, exponent, apply_now, trusted, diagnostic, False, 0.0, restart)
+
+
+@njit(cache=True, nogil=True)
+def update_gravity(params: np.record, updates: np.record, gravity: np.record, tick: TickContext, accel_body_m_s2: tuple,
+                   tau_s: float, predicted_q: tuple, interval_s: float, heading_measured: bool, has_gnss_world: bool,
+                   gnss_world_m_s2: tuple, gnss_noise_m_s2: float) -> GravityReading:
     """The gravity update of one tick from the tick's mean specific force in the state's body frame, the
-    readings ``interval_s`` after the previous ones. The state
+    readings ``interval_s`` after the previous ones; ``gravity`` (the state's part) changed in place, ``params`` and
+    ``updates`` the ``accel`` and ``updates`` groups. The state
     has converged once its doubt is below ``updates.converged_deg``: the whole doubt's, or without a heading
     measurement (6-D: the magnetometer off) the tilt's, as the heading is never known and the raw readings would
-    be taken for ever. ``gnss`` (:func:`fuser.model.velocity.raw_world`) what a raw reading measures in the world
-    while GNSS fixes come, ``g e_z - a`` (module docstring). In plain floats (:mod:`fuser.model.vec3`)."""
+    be taken for ever. ``has_gnss_world``: GNSS fixes come (:func:`fuser.model.velocity.raw_world`), and a raw reading
+    measures ``gnss_world_m_s2`` = ``g e_z - a`` in the world (module docstring), ``a``'s noise ``gnss_noise_m_s2``
+    per axis."""
     g = params.gravity_m_s2
-    gnss_world = None if gnss is None else vec3.floats(gnss.vector_m_s2)
     fast_sigma = fast_start_sigma_rad(updates, params.sigma_rad, interval_s)
-    raw_sigma = fast_sigma if gnss is None or gnss_world is None else math.hypot(fast_sigma, gnss.noise_m_s2 / vec3.norm(gnss_world))
-    to_inertial = vec3.rotation_rows(state.q_strapdown)
-    accel = vec3.floats(accel_body_m_s2)
+    raw_sigma = math.hypot(fast_sigma, gnss_noise_m_s2 / vec3.norm(gnss_world_m_s2)) if has_gnss_world else fast_sigma
+    to_inertial = rotation_rows(from_array(gravity.q_strapdown))
+    accel = accel_body_m_s2
     f_inertial = vec3.mat_vec(to_inertial, accel)
-    rotation = vec3.rotation_rows(predicted_q)  # body -> NED
+    rotation = rotation_rows(predicted_q)  # body -> NED
     predicted_down = rotation[2]  # R^T e_z: world down in the body
     # once, at the first GNSS acceleration: what the state measured before it took every raw reading for down
-    restart = gnss_world is not None and not state.gnss_checked and state.tilt_known and _disagrees(
-        raw_sigma, updates, tick.prior_tilt_doubt_deg, vec3.mat_vec(rotation, (-accel[0], -accel[1], -accel[2])), gnss_world)
+    restart = (has_gnss_world and not gravity.gnss_checked and gravity.tilt_known
+               and _disagrees(raw_sigma, updates, tick.prior_tilt_doubt_deg, vec3.mat_vec(rotation, (-accel[0], -accel[1], -accel[2])),
+                              gnss_world_m_s2))
     # a restart: converged on raw readings the GNSS acceleration shows wrong (a start in a turn), the fast start again
-    accel_lp = None if restart else state.accel_lp_m_s2
-    raw_mean, raw_s = (None, 0.0) if restart else (state.raw_mean_m_s2, state.raw_s)
-    gnss_checked = state.gnss_checked or gnss_world is not None
+    has_lp = gravity.has_accel_lp and not restart
+    has_raw_mean = gravity.has_raw_mean and not restart
+    raw_mean = vec3.load(gravity.raw_mean_m_s2)
+    raw_s = 0.0 if restart else gravity.raw_s
+    gnss_checked = gravity.gnss_checked or has_gnss_world
     doubt_deg = tick.prior_doubt_deg if heading_measured else tick.prior_tilt_doubt_deg
-    converged = not restart and (state.converged or doubt_deg < updates.converged_deg)
-    if not converged:
-        lowpassed = None
-    else:
+    converged = not restart and (gravity.converged or doubt_deg < updates.converged_deg)
+    lowpassed = vec3.ZERO
+    if converged:
         # the low-pass starts from what the estimate followed (the raw readings' mean), or from the estimate itself
-        if accel_lp is not None:
-            start = vec3.floats(accel_lp)
-        elif raw_mean is None:
+        if has_lp:
+            start = vec3.load(gravity.accel_lp_m_s2)
+        elif not has_raw_mean:
             start = vec3.mat_vec(to_inertial, (-g * predicted_down[0], -g * predicted_down[1], -g * predicted_down[2]))
         else:
-            start = vec3.floats(raw_mean)
+            start = raw_mean
         lowpassed = vec3.toward(start, f_inertial, min(1.0, interval_s / tau_s))
-        raw_mean, raw_s = None, 0.0
+        has_raw_mean, raw_mean, raw_s = False, vec3.ZERO, 0.0
     # a raw reading with the GNSS acceleration taken out measures g e_z - a; every other, down
-    gnss_raw = lowpassed is None and gnss_world is not None
+    gnss_raw = not converged and has_gnss_world
     if gnss_raw:
-        world_norm = vec3.norm(gnss_world)  # type: ignore[arg-type]
-        world_unit = (gnss_world[0] / world_norm, gnss_world[1] / world_norm, gnss_world[2] / world_norm)  # type: ignore[index]
+        world_norm = vec3.norm(gnss_world_m_s2)
+        world_unit = (gnss_world_m_s2[0] / world_norm, gnss_world_m_s2[1] / world_norm, gnss_world_m_s2[2] / world_norm)
     else:
-        world_norm, world_unit = g, _DOWN
-    measured = f_inertial if lowpassed is None else lowpassed
+        world_norm, world_unit = g, DOWN_NED
+    measured = lowpassed if converged else f_inertial
     norm = vec3.norm(measured)
     norm_error = abs(norm - world_norm) / g
-    lowpassed_m_s2 = None if lowpassed is None else np.array(lowpassed)
     if norm_error > params.norm_gate_fraction:
-        kept = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=lowpassed_m_s2, down_body=state.down_body, converged=converged,
-                            tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=raw_mean, raw_s=raw_s,
-                            measured_body=state.measured_body, gnss_checked=gnss_checked, measured_world=state.measured_world)
-        return GravityReading(kept, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm"), restart=restart)
+        _store_lp(gravity, converged, lowpassed, has_raw_mean, raw_mean, raw_s)
+        gravity.converged, gravity.gnss_checked = converged, gnss_checked
+        nan = math.nan
+        return _reading(False, np.zeros((4, 4)), False, False, diagnostics.of(GRAVITY, GATED, NORM, nan, nan, nan, NOT_AIDED), restart)
     filtered_body = vec3.vec_mat(measured, to_inertial)
     down = (-filtered_body[0] / norm, -filtered_body[1] / norm, -filtered_body[2] / norm)
     if converged:  # Q = q T / dt over the interval T
@@ -196,28 +193,37 @@ def update_gravity(params: AccelSettings, updates: UpdateSettings, state: Gravit
     else:
         sigma = gate_sigma = raw_sigma if gnss_raw else fast_sigma
     innovation = vec3.angle_rad(vec3.dot(vec3.mat_vec(rotation, down), world_unit))
-    verdict = innovation_gate(updates, state.gated_s, innovation, gate_sigma, tick.prior_doubt_deg, tick.dt_s)
+    verdict = innovation_gate(updates, gravity.gated_s, innovation, gate_sigma, tick.prior_doubt_deg, tick.dt_s)
     # nothing to gate against before the first tilt, nor in a fast start the GNSS acceleration called for
-    outcome, gated_s = (verdict.outcome, verdict.gated_s) if state.tilt_known and not restart else ("fused", state.gated_s)
-    diagnostic = UpdateDiagnostic.of("gravity", outcome, "innovation" if outcome == "gated" else "", innovation, sigma, verdict.test_ratio,
-                                     _GNSS_RAW if gnss_raw else ())
-    fused = outcome != "gated"
-    if fused and lowpassed is None and not gnss_raw:  # a raw reading the estimate follows as down, into their mean
+    tilt_known = gravity.tilt_known
+    if tilt_known and not restart:
+        outcome, gated_s = verdict.outcome, verdict.gated_s
+    else:
+        outcome, gated_s = FUSED, gravity.gated_s
+    diagnostic = diagnostics.of(GRAVITY, outcome, INNOVATION if outcome == GATED else NO_REASON, innovation, sigma, verdict.test_ratio,
+                                AIDED_RAW if gnss_raw else NOT_AIDED)
+    fused = outcome != GATED
+    if fused and not converged and not gnss_raw:  # a raw reading the estimate follows as down, into their mean
         raw_s = raw_s + interval_s
-        raw_mean = np.array(f_inertial if raw_mean is None else vec3.toward(vec3.floats(raw_mean), f_inertial, interval_s / raw_s))
-    down_body, measured_world = np.array(down), np.array(world_unit) if gnss_raw else _DOWN_NED_READ_ONLY
-    after = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=lowpassed_m_s2, down_body=down_body, converged=converged,
-                         tilt_known=state.tilt_known or fused, gated_s=gated_s, raw_mean_m_s2=raw_mean, raw_s=raw_s, measured_body=down_body,
-                         gnss_checked=gnss_checked, measured_world=measured_world)
+        raw_mean = vec3.toward(raw_mean, f_inertial, interval_s / raw_s) if has_raw_mean else f_inertial
+        has_raw_mean = True
+    measured_world = world_unit if gnss_raw else DOWN_NED
+    _store_lp(gravity, converged, lowpassed, has_raw_mean, raw_mean, raw_s)
+    vec3.store(gravity.down_body, down)
+    vec3.store(gravity.measured_body, down)
+    vec3.store(gravity.measured_world, measured_world)
+    gravity.converged, gravity.tilt_known, gravity.gated_s, gravity.gnss_checked = converged, tilt_known or fused, gated_s, gnss_checked
     if not fused:
-        return GravityReading(after, None, False, False, diagnostic, restart=restart)
+        return _reading(False, np.zeros((4, 4)), False, False, diagnostic, restart)
     trusted = converged and norm_error < 0.5 * params.norm_gate_fraction
-    return GravityReading(after, vector_exponent(down_body, measured_world, sigma),
-                          not state.tilt_known or restart, trusted, diagnostic, restart=restart)
+    exponent = _davenport(np.array(down), np.array(measured_world), sigma) if sigma > 0.0 else None
+    if exponent is None:  # not a likelihood (a unit down, a unit world direction and a positive sigma always are)
+        return _reading(False, np.zeros((4, 4)), False, False, diagnostic, restart)
+    return _reading(True, np.asarray(exponent), not tilt_known or restart, trusted, diagnostic, restart)
 
 
-def _disagrees(sigma_rad: float, updates: UpdateSettings, prior_tilt_deg: float, predicted_world: Vec3,
-               gnss_world_m_s2: Vec3) -> bool:
+@njit(cache=True, nogil=True)
+def _disagrees(sigma_rad: float, updates: np.record, prior_tilt_deg: float, predicted_world: tuple, gnss_world_m_s2: tuple) -> bool:
     """The raw reading, seen in the world through the prediction, is further from ``g e_z - a`` than the innovation
     gate allows a raw reading (``sigma_rad``, ``accel.sigma_rad`` with the GNSS acceleration's noise, and the state's
     tilt doubt: its heading's does not count)."""

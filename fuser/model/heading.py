@@ -23,52 +23,33 @@ tilt (the simulated multirotor's heading 0.78 -> 1.24 deg in its first 2 s).
 Started in a 30-deg turn of the JSBSim Cessna, the estimate was 30-45 deg off
 in tilt and 100-120 deg in heading for 15 s, reporting 5; with this and the
 restart, 1.6 and 4.6 deg after 0.5 s.
+
+Compiled (numba) for the tick (:func:`fuser.model.fusion.tick`): the heading's
+memory is the state record's ``heading`` part (:data:`fuser.model.state.HEADING`),
+changed in place; the reading is a :class:`fuser.model.tick.HeadingReading`.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
-from core.observations import heading_exponent, vector_exponent
-from drivers.samples import Vec3
-from fuser.config import BiasSettings, MagSettings, UpdateSettings
-from fuser.model import vec3
-from fuser.model.diagnostics import UpdateDiagnostic
+from core.observations import _davenport, _heading_exponent
+from core.quaternion_kernels import rotation_rows
+from fuser.model import diagnostics, vec3
+from fuser.model.diagnostics import BEFORE_TILT, DIP, GATED, HEADING, INNOVATION, NO_REASON, NORM, NOT_AIDED
 from fuser.model.gate import fast_start_sigma_rad, innovation_gate
-from fuser.model.state import GravityState, HeadingState
-from fuser.model.tick import TickContext
+from fuser.model.tick import HeadingReading, TickContext
 
-__all__ = ["FieldReference", "HeadingReading", "heading_sigma_rad", "update_heading"]
+__all__ = ["heading_sigma_rad", "no_reading", "update_heading"]
 
-
-@dataclass(frozen=True, slots=True)
-class FieldReference:
-    """Coefficients of the reference field, computed once from ``mag.field_ned_gauss``."""
-
-    norm_gauss: float
-    unit_ned: Vec3
-    """The field's direction (NED), in plain floats (:mod:`fuser.model.vec3`)."""
-    heading_rad: float
-
-    @classmethod
-    def of(cls, field_ned_gauss: tuple[float, float, float]) -> FieldReference:
-        field = np.asarray(field_ned_gauss, dtype=float)
-        norm = float(np.linalg.norm(field))
-        return cls(norm, vec3.floats(field / norm), math.atan2(field[1], field[0]))
-
-@dataclass(frozen=True, slots=True)
-class HeadingReading:
-    state: HeadingState
-    exponent: np.ndarray | None
-    diagnostic: UpdateDiagnostic
-
-
-def heading_sigma_rad(params: MagSettings, bias: BiasSettings, updates: UpdateSettings, converged: bool, tick: TickContext,
+@njit(cache=True, nogil=True)
+def heading_sigma_rad(params_mag: np.record, params_bias: np.record, params_updates: np.record, converged: bool, tick: TickContext,
                       bias_variance_rad2_s2: float, interval_s: float) -> float:
-    """Sigma of a heading reading taken ``interval_s`` after the previous one.
+    """Sigma of a heading reading taken ``interval_s`` after the previous one (``params_*``: the ``mag``, ``bias``
+    and ``updates`` groups of :mod:`fuser.model.params`).
 
     ``sigma_rad`` until converged (a fast start; per ``updates.fast_start_interval_s`` of readings,
     :func:`fuser.model.gate.fast_start_sigma_rad`); then the magnetometer's
@@ -81,38 +62,67 @@ def heading_sigma_rad(params: MagSettings, bias: BiasSettings, updates: UpdateSe
     poorly known bias is still held.
     """
     if not converged or interval_s <= 0.0:
-        return fast_start_sigma_rad(updates, params.sigma_rad, interval_s)
-    correlated = math.radians(params.error_deg) * math.sqrt(max(params.correlation_s / interval_s, 1.0))
-    tau = math.radians(params.heading_bias_error_deg) / math.sqrt(max(bias_variance_rad2_s2, bias.min_variance_rad2_s2))
+        return fast_start_sigma_rad(params_updates, params_mag.sigma_rad, interval_s)
+    correlated = math.radians(params_mag.error_deg) * math.sqrt(max(params_mag.correlation_s / interval_s, 1.0))
+    tau = math.radians(params_mag.heading_bias_error_deg) / math.sqrt(max(bias_variance_rad2_s2, params_bias.min_variance_rad2_s2))
     return min(correlated, math.sqrt(tick.process_variance_rad2 * interval_s / tick.dt_s) * tau / interval_s)
 
 
-def update_heading(params: MagSettings, updates: UpdateSettings, reference: FieldReference, state: HeadingState, gravity: GravityState,
-                   tick: TickContext, mag_body_gauss: np.ndarray, current_q: np.ndarray, sigma_rad: float) -> HeadingReading:
+@njit(cache=True, nogil=True)
+def no_reading() -> HeadingReading:
+    """No magnetometer reading this tick: nothing fused, no diagnostic."""
+    return HeadingReading(False, np.zeros((4, 4)), diagnostics.none())
+
+
+@njit(cache=True, nogil=True)
+def _gated(reason: int) -> HeadingReading:
+    """A reading gated before its innovation was computed (``before_tilt``, ``norm``, ``dip``)."""
+    nan = math.nan
+    return HeadingReading(False, np.zeros((4, 4)), diagnostics.of(HEADING, GATED, reason, nan, nan, nan, NOT_AIDED))
+
+
+@njit(cache=True, nogil=True)
+def update_heading(params_mag: np.record, params_updates: np.record, field_ned_gauss: np.ndarray, heading: np.record,
+                   gravity: np.record, tick: TickContext, mag_body_gauss: tuple, current_q: tuple, sigma_rad: float) -> HeadingReading:
     """The heading update of one tick from the tick's mean field in the state's body frame, against the
-    current estimate ``current_q`` and the measured down in ``gravity``. ``state`` is the heading's with
-    this reading's time already noted. In plain floats (:mod:`fuser.model.vec3`)."""
+    current estimate ``current_q`` and the measured down in ``gravity`` (the state's ``gravity`` part); the reference
+    field ``field_ned_gauss`` (:mod:`fuser.model.field`). ``heading`` is the state's ``heading`` part, this reading's
+    time already noted: its ``gated_s`` is changed in place once the innovation gate has run."""
     if not gravity.tilt_known:
-        return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "before_tilt"))
-    mag = vec3.floats(mag_body_gauss)
+        return _gated(BEFORE_TILT)
+    # the reference field's coefficients (three floats: computed each reading, cheaper than keeping them)
+    field = (field_ned_gauss[0], field_ned_gauss[1], field_ned_gauss[2])
+    reference_norm = vec3.norm(field)
+    reference_unit = (field[0] / reference_norm, field[1] / reference_norm, field[2] / reference_norm)
+    reference_heading = math.atan2(field[1], field[0])
+    mag = mag_body_gauss
     norm = vec3.norm(mag)
-    if abs(norm - reference.norm_gauss) > params.norm_gate_fraction * reference.norm_gauss:
-        return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "norm"))
+    if abs(norm - reference_norm) > params_mag.norm_gate_fraction * reference_norm:
+        return _gated(NORM)
     # the dip: the field's angle to the measured specific force, both in the body frame, against the reference
     # field's to the world direction that was measured as (down, or gravity minus the GNSS acceleration): neither
     # depends on the estimate, so that a wrong estimate cannot lock the magnetometer out
-    measured = vec3.angle_rad(vec3.dot(mag, vec3.floats(gravity.measured_body)) / norm)
-    expected = vec3.angle_rad(vec3.dot(reference.unit_ned, vec3.floats(gravity.measured_world)))
-    if abs(math.degrees(measured - expected)) > params.dip_gate_deg:
-        return HeadingReading(state, None, UpdateDiagnostic.of("heading", "gated", "dip"))
-    north, east, _ = vec3.rotation_rows(current_q)  # body -> NED: the field's north and east in the world
-    error = math.remainder(reference.heading_rad - math.atan2(vec3.dot(east, mag), vec3.dot(north, mag)), 2.0 * math.pi)
-    verdict = innovation_gate(updates, state.gated_s, abs(error), max(sigma_rad, params.sigma_rad), tick.prior_doubt_deg, tick.dt_s)
-    diagnostic = UpdateDiagnostic.of("heading", verdict.outcome, "innovation" if verdict.outcome == "gated" else "",
-                                     abs(error), sigma_rad, verdict.test_ratio)
-    state = HeadingState(verdict.gated_s, state.last_reading_ns)
-    if verdict.outcome == "gated":
-        return HeadingReading(state, None, diagnostic)
+    measured = vec3.angle_rad(vec3.dot(mag, vec3.load(gravity.measured_body)) / norm)
+    expected = vec3.angle_rad(vec3.dot(reference_unit, vec3.load(gravity.measured_world)))
+    if abs(math.degrees(measured - expected)) > params_mag.dip_gate_deg:
+        return _gated(DIP)
+    north, east, _ = rotation_rows(current_q)  # body -> NED: the field's north and east in the world
+    error = vec3.wrapped_pi(reference_heading - math.atan2(vec3.dot(east, mag), vec3.dot(north, mag)))
+    verdict = innovation_gate(params_updates, heading.gated_s, abs(error), max(sigma_rad, params_mag.sigma_rad), tick.prior_doubt_deg,
+                              tick.dt_s)
+    diagnostic = diagnostics.of(HEADING, verdict.outcome, INNOVATION if verdict.outcome == GATED else NO_REASON, abs(error), sigma_rad,
+                                verdict.test_ratio, NOT_AIDED)
+    heading.gated_s = verdict.gated_s
+    if verdict.outcome == GATED:
+        return HeadingReading(False, np.zeros((4, 4)), diagnostic)
     if not gravity.converged and gravity.gnss_checked:  # a fast start with GNSS: the whole field as a vector (module docstring)
-        return HeadingReading(state, vector_exponent(mag_body_gauss, reference.unit_ned, sigma_rad), diagnostic)
-    return HeadingReading(state, heading_exponent(current_q, error, sigma_rad), diagnostic)
+        b, r = np.empty(3), np.empty(3)
+        b[0], b[1], b[2] = mag
+        r[0], r[1], r[2] = reference_unit
+        k = _davenport(b, r, sigma_rad)
+        if k is None:  # not a direction (a field that is not finite): nothing to fuse
+            return HeadingReading(False, np.zeros((4, 4)), diagnostic)
+        return HeadingReading(True, np.asarray(k), diagnostic)
+    q = np.empty(4)
+    q[0], q[1], q[2], q[3] = current_q
+    return HeadingReading(True, _heading_exponent(q, error, sigma_rad), diagnostic)

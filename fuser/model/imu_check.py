@@ -11,82 +11,123 @@ rate from one of its samples to the next: random data is rough, a working
 gyro smooth) is the one kept out. Kept-out samples never reach the
 integration or the updates; they are counted, and the published estimate is
 widened while the check keeps something out (``fault_sigma_deg``).
+
+Compiled (numba) for the tick (:func:`fuser.model.fusion.tick`): each IMU's
+latest sample is in its slot of the state record's ``imu_check`` part
+(:data:`fuser.model.state.IMU_CHECK`; the slot is the sample's
+``IMU_INPUT.slot``, given by the model in order of the IMUs' first arrival),
+changed in place.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Mapping, Sequence
 
 import numpy as np
+from numba import njit
 
-from drivers.samples import ImuSample, SourceId, Vec3
-from fuser.config import ImuCheckSettings
-
-__all__ = ["ImuCheckState", "ImuLatest", "check_imus"]
+__all__ = ["check_imus"]
 
 
-@dataclass(frozen=True, slots=True)
-class ImuLatest:
-    """One IMU's latest sample (time on the loop's timeline) and its roughness ((rad/s)^2)."""
-
-    t_ns: int
-    gyro_rad_s: Vec3
-    accel_m_s2: Vec3
-    roughness_rad2_s2: float
-
-
-@dataclass(frozen=True, slots=True)
-class ImuCheckState:
-    latest: Mapping[SourceId, ImuLatest] = field(default_factory=dict)
-    last_fault_ns: int | None = None
-    """When a sample was last kept out."""
+@njit(cache=True, nogil=True)
+def _agrees(params: np.record, gyro: tuple, accel: tuple, ref_gyro: tuple, ref_accel: tuple, dt_s: float) -> bool:
+    """The sample's rate within ``disagree_rad_s + angular_accel_rad_s2 dt`` and its specific force within
+    ``disagree_m_s2`` of the reference's (module docstring)."""
+    rx, ry, rz = gyro[0] - ref_gyro[0], gyro[1] - ref_gyro[1], gyro[2] - ref_gyro[2]
+    fx, fy, fz = accel[0] - ref_accel[0], accel[1] - ref_accel[1], accel[2] - ref_accel[2]
+    return (math.sqrt(rx * rx + ry * ry + rz * rz) <= params.disagree_rad_s + params.angular_accel_rad_s2 * dt_s
+            and math.sqrt(fx * fx + fy * fy + fz * fz) <= params.disagree_m_s2)
 
 
-def _roughness(params: ImuCheckSettings, before: ImuLatest | None, s: ImuSample, t_ns: int) -> float:
-    if before is None:
-        return 0.0
-    (x, y, z), (bx, by, bz) = s.gyro_rad_s, before.gyro_rad_s
-    step2 = (x - bx) ** 2 + (y - by) ** 2 + (z - bz) ** 2
-    a = min(1.0, (t_ns - before.t_ns) * 1e-9 / params.roughness_s)
-    return before.roughness_rad2_s2 + a * (step2 - before.roughness_rad2_s2)
+@njit(cache=True, nogil=True)
+def _medians(values: np.ndarray, n: int) -> tuple:
+    """The median of each column of ``values[:n]`` (sorted in place; the mean of the middle two for an even ``n``),
+    ``np.median`` over the first axis, the same whatever the rows' order: the rows' rates (columns 0-2) and specific
+    forces (3-5), as two 3-tuples."""
+    out = np.empty(values.shape[1])
+    half = n // 2
+    for c in range(values.shape[1]):
+        for i in range(1, n):  # insertion sort: a few IMUs
+            j = i
+            while j > 0 and values[j - 1, c] > values[j, c]:
+                values[j - 1, c], values[j, c] = values[j, c], values[j - 1, c]
+                j -= 1
+        out[c] = values[half, c] if n % 2 else (values[half - 1, c] + values[half, c]) / 2.0
+    return (out[0], out[1], out[2]), (out[3], out[4], out[5])
 
 
-def _agrees(params: ImuCheckSettings, gyro: np.ndarray, accel: np.ndarray, ref_gyro: np.ndarray, ref_accel: np.ndarray, dt_s: float) -> bool:
-    rate_gap = gyro - ref_gyro
-    force_gap = accel - ref_accel
-    return (math.sqrt(float(rate_gap @ rate_gap)) <= params.disagree_rad_s + params.angular_accel_rad_s2 * dt_s
-            and math.sqrt(float(force_gap @ force_gap)) <= params.disagree_m_s2)
+@njit(cache=True, nogil=True)
+def check_imus(params_imu_check: np.record, check: np.record, imu: np.ndarray) -> tuple:
+    """``(kept, disagreeing)``: the indices of the tick's IMU samples (``imu``, :data:`fuser.model.tick.IMU_INPUT`)
+    kept, ascending, and how many were kept out. The samples are taken in time order (stable: samples at one
+    instant in the tick's order); ``check`` (the state's ``imu_check`` part) holds each IMU's latest after them.
 
-
-def check_imus(params: ImuCheckSettings, state: ImuCheckState, samples: Sequence[ImuSample], placed_ns: Sequence[int]
-               ) -> tuple[ImuCheckState, list[int], int]:
-    """The state after the tick's IMU samples, the indices of the samples kept, and how many were kept out."""
-    latest = dict(state.latest)
-    kept: list[int] = []
-    out = 0
-    last_fault = state.last_fault_ns
+    Each sample: its IMU's roughness (the low-passed squared change of rate from its previous sample), then the
+    comparison with the other IMUs' latest within ``compare_within_s`` (module docstring)."""
+    params = params_imu_check
+    n = imu.shape[0]
+    placed = np.empty(n, np.int64)
+    order = np.empty(n, np.int64)  # by placed time, stable (insertion sort: a tick holds a few samples, nearly in order)
+    for i in range(n):
+        placed[i] = imu[i].placed_ns
+        order[i] = i
+        j = i
+        while j > 0 and placed[order[j - 1]] > placed[order[j]]:
+            order[j - 1], order[j] = order[j], order[j - 1]
+            j -= 1
+    good = np.empty(n, np.bool_)
+    slots = check.t_ns.shape[0]
+    others = np.empty(slots, np.int64)
+    rows = np.empty((slots + 1, 6))  # the other IMUs' and the sample's gyro and accel, for the medians
     window_ns = params.compare_within_s * 1e9
-    for i in sorted(range(len(samples)), key=lambda k: placed_ns[k]):
-        s, t = samples[i], placed_ns[i]
-        mine = ImuLatest(t, s.gyro_rad_s, s.accel_m_s2, _roughness(params, latest.get(s.source), s, t))
-        latest[s.source] = mine
-        others = [o for src, o in latest.items() if src != s.source and t - o.t_ns <= window_ns] if len(latest) > 1 else []
-        good = True
-        if params.enabled and others:
-            gyro, accel = np.asarray(s.gyro_rad_s), np.asarray(s.accel_m_s2)
-            if len(others) >= 2:
-                ref_gyro = np.median([o.gyro_rad_s for o in others] + [s.gyro_rad_s], axis=0)
-                ref_accel = np.median([o.accel_m_s2 for o in others] + [s.accel_m_s2], axis=0)
-                good = _agrees(params, gyro, accel, ref_gyro, ref_accel, max(t - o.t_ns for o in others) * 1e-9)
-            else:
-                (other,) = others
-                good = _agrees(params, gyro, accel, np.asarray(other.gyro_rad_s), np.asarray(other.accel_m_s2), (t - other.t_ns) * 1e-9) \
-                    or mine.roughness_rad2_s2 <= other.roughness_rad2_s2
-        if good:
-            kept.append(i)
-        else:
+    out = 0
+    for k in range(n):
+        i = order[k]
+        slot, t = imu[i].slot, placed[i]
+        g, a = imu[i].gyro_rad_s, imu[i].accel_m_s2
+        gyro, accel = (g[0], g[1], g[2]), (a[0], a[1], a[2])
+        roughness = 0.0  # the first sample of its IMU: none
+        if check.seen[slot]:
+            bx, by, bz = check.gyro_rad_s[slot, 0], check.gyro_rad_s[slot, 1], check.gyro_rad_s[slot, 2]
+            step2 = (gyro[0] - bx) * (gyro[0] - bx) + (gyro[1] - by) * (gyro[1] - by) + (gyro[2] - bz) * (gyro[2] - bz)
+            gain = min(1.0, (t - check.t_ns[slot]) * 1e-9 / params.roughness_s)
+            before = check.roughness_rad2_s2[slot]
+            roughness = before + gain * (step2 - before)
+        check.seen[slot], check.t_ns[slot], check.roughness_rad2_s2[slot] = 1, t, roughness
+        for c in range(3):
+            check.gyro_rad_s[slot, c] = gyro[c]
+            check.accel_m_s2[slot, c] = accel[c]
+        n_others = 0
+        for o in range(slots):
+            if o != slot and check.seen[o] and t - check.t_ns[o] <= window_ns:
+                others[n_others] = o
+                n_others += 1
+        ok = True
+        if params.enabled and n_others >= 2:  # against the median of the others and itself
+            oldest = check.t_ns[others[0]]
+            for m in range(n_others):
+                o = others[m]
+                oldest = min(oldest, check.t_ns[o])
+                for c in range(3):
+                    rows[m, c], rows[m, 3 + c] = check.gyro_rad_s[o, c], check.accel_m_s2[o, c]
+            for c in range(3):
+                rows[n_others, c], rows[n_others, 3 + c] = gyro[c], accel[c]
+            ref_gyro, ref_accel = _medians(rows, n_others + 1)
+            ok = _agrees(params, gyro, accel, ref_gyro, ref_accel, (t - oldest) * 1e-9)
+        elif params.enabled and n_others == 1:  # against the other: the rougher of two that disagree is kept out
+            o = others[0]
+            ref_gyro = (check.gyro_rad_s[o, 0], check.gyro_rad_s[o, 1], check.gyro_rad_s[o, 2])
+            ref_accel = (check.accel_m_s2[o, 0], check.accel_m_s2[o, 1], check.accel_m_s2[o, 2])
+            ok = (_agrees(params, gyro, accel, ref_gyro, ref_accel, (t - check.t_ns[o]) * 1e-9)
+                  or roughness <= check.roughness_rad2_s2[o])
+        good[i] = ok
+        if not ok:
             out += 1
-            last_fault = t
-    return ImuCheckState(latest, last_fault), sorted(kept), out
+            check.has_last_fault_ns, check.last_fault_ns = True, t
+    kept = np.empty(n - out, np.int64)
+    m = 0
+    for i in range(n):
+        if good[i]:
+            kept[m] = i
+            m += 1
+    return kept, out

@@ -28,71 +28,177 @@ next tick, as does a tick without a gyro track, or one while the IMU check
 keeps an IMU out (:mod:`fuser.model.imu_check`: between ticks it is not known
 which IMU is wrong). The filter's state is never
 touched: the next tick starts from its own posterior, not from a prediction.
+
+Compiled with numba: it runs once per IMU sample, between the ticks, called
+from Python (:mod:`fuser.loop`). The predictor is an array of one
+:data:`OUTPUT` record, changed in place (``active`` False while it waits for
+the next tick); an array, not the record, because numba types an array
+argument in a microsecond and a record in about ten.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+from numba import njit
 
-from core import quaternion as quat
 from core.bingham import Bingham
-from drivers.samples import Vec3
-from fuser.config import GyroSettings
+from core.bingham_kernels import rotated_right
+from core.quaternion_kernels import IDENTITY, conjugate, from_array, turned_by
+from fuser.model import vec3
 from fuser.model.propagation import saturated
-from fuser.model.state import GyroTrack
 
-__all__ = ["OutputState", "advanced", "at", "started"]
+__all__ = ["OUTPUT", "OutputPredictor", "advanced", "at", "started"]
 
-
-@dataclass(frozen=True, slots=True)
-class OutputState:
-    """The predictor between two ticks."""
-
-    base: Bingham
-    """The tick's published distribution at the tick (its lead taken back)."""
-    turned_wxyz: tuple[float, float, float, float]
-    """Body rotation from the tick to the last sample integrated (bias removed)."""
-    last_ns: int
-    """The last gyro sample integrated (loop timeline)."""
-    last_rate_rad_s: Vec3
-    """Its raw rate."""
-    covered_ns: int
-    """The rotation covers up to here: the tick's time until a sample after it closes the first interval."""
-    held_rad: Vec3
-    """Raw rotation the tick's hold applied after ``last_ns``: taken back by the first interval."""
-    bias_rad_s: Vec3
+OUTPUT = np.dtype([
+    ("base_M", "f8", (4, 4)),  # the tick's published distribution at the tick (its lead taken back)
+    ("base_Z", "f8", (4,)),
+    ("turned_wxyz", "f8", (4,)),  # body rotation from the tick to the last sample integrated (bias removed)
+    ("last_ns", "i8"),  # the last gyro sample integrated (loop timeline)
+    ("last_rate_rad_s", "f8", (3,)),  # its raw rate
+    ("covered_ns", "i8"),  # the rotation covers up to here: the tick's time until a sample after it closes the first interval
+    ("held_rad", "f8", (3,)),  # raw rotation the tick's hold applied after last_ns: taken back by the first interval
+    ("bias_rad_s", "f8", (3,)),
+    ("active", "?"),  # False: no prediction until the next tick (no usable rate, a gap or a saturated sample)
+], align=True)
+"""The predictor between two ticks."""
 
 
-def started(published: Bingham, lead_rotation: np.ndarray | None, track: GyroTrack | None, bias_rad_s: np.ndarray) -> OutputState | None:
-    """The predictor after a tick: its published distribution, the body rotation its lead applied (None: none), the
-    gyro track and bias after it. None without a usable rate (no gyro yet, or the last sample saturated)."""
-    if track is None or track.saturated:
-        return None
-    base = published if lead_rotation is None else published.rotate_right(quat.conjugate(lead_rotation))
-    return OutputState(base, (1.0, 0.0, 0.0, 0.0), track.last_ns, track.last_rate_rad_s, track.covered_ns, track.held_rad,
-                       tuple(bias_rad_s.tolist()))  # type: ignore[arg-type]
+@njit(cache=True, nogil=True)
+def _store4(out: np.ndarray, q: tuple) -> None:
+    for i in range(4):
+        out[i] = q[i]
 
 
-def advanced(params: GyroSettings, state: OutputState, rate_rad_s: Vec3, placed_ns: int) -> OutputState | None:
-    """``state`` turned through one more sample of the reference IMU (``placed_ns`` on the loop's timeline); None
-    after a gap or a saturated sample (the prediction waits for the next tick); unchanged for a sample not after
-    the rotation's end (out of order). In plain floats: it runs once per IMU sample."""
-    if placed_ns <= state.covered_ns:
-        return state
-    h_ns = placed_ns - state.last_ns
+@njit(cache=True, nogil=True, inline="always")  # inlined: copies a record's field into an array and back
+def _store44(out: np.ndarray, M: np.ndarray) -> None:
+    for i in range(4):
+        for j in range(4):
+            out[i, j] = M[i, j]
+
+
+@njit(cache=True, nogil=True)
+def _as_array(q: tuple) -> np.ndarray:
+    u = np.empty(4)
+    for i in range(4):
+        u[i] = q[i]
+    return u
+
+
+@njit(cache=True, nogil=True)
+def started(out: np.ndarray, published_M: np.ndarray, published_Z: np.ndarray, has_lead: bool, lead_rotation: np.ndarray,
+            gyro: np.record, bias_rad_s: np.ndarray) -> None:
+    """``out[0]`` (:data:`OUTPUT`) the predictor after a tick: its published distribution, the body rotation its lead
+    applied (``lead_rotation``, read only if ``has_lead``), the gyro (:data:`fuser.model.state.GYRO`) and bias after
+    it. Not ``active`` without a usable rate (no gyro yet, or the last sample saturated)."""
+    o = out[0]
+    track = gyro.track
+    if not gyro.has_track or track.saturated:
+        o.active = False
+        return
+    M = np.empty((4, 4))  # a heap array: the kernels below are compiled for those, not for the record's field
+    _store44(M, published_M)
+    if has_lead:
+        M = rotated_right(_as_array(conjugate(from_array(lead_rotation))), M)
+    _store44(o.base_M, M)
+    for i in range(4):
+        o.base_Z[i] = published_Z[i]
+    _store4(o.turned_wxyz, IDENTITY)
+    o.last_ns, o.covered_ns = track.last_ns, track.covered_ns
+    vec3.store(o.last_rate_rad_s, vec3.load(track.last_rate_rad_s))
+    vec3.store(o.held_rad, vec3.load(track.held_rad))
+    vec3.store(o.bias_rad_s, (bias_rad_s[0], bias_rad_s[1], bias_rad_s[2]))
+    o.active = True
+
+
+@njit(cache=True, nogil=True)
+def advanced(params: np.record, out: np.ndarray, rate_rad_s: tuple, placed_ns: int) -> bool:
+    """``out[0]`` turned through one more sample of the reference IMU (``placed_ns`` on the loop's timeline;
+    ``params`` the ``gyro`` group); no longer ``active`` after a gap or a saturated sample (the prediction waits for
+    the next tick); unchanged for a sample not after the rotation's end (out of order). True if the prediction is
+    active and now ends at ``placed_ns``."""
+    o = out[0]
+    if not o.active:
+        return False
+    if placed_ns <= o.covered_ns:
+        return o.last_ns == placed_ns
+    h_ns = placed_ns - o.last_ns
     if h_ns > round(params.max_interval_s * 1e9) or saturated(params, rate_rad_s):
-        return None
-    half, covered = 0.5 * h_ns * 1e-9, (placed_ns - state.covered_ns) * 1e-9
-    rotvec = [half * (r + p) - held - b * covered for r, p, held, b in zip(rate_rad_s, state.last_rate_rad_s, state.held_rad, state.bias_rad_s)]
-    return OutputState(state.base, quat.turned_by(state.turned_wxyz, rotvec), placed_ns, rate_rad_s, placed_ns, (0.0, 0.0, 0.0),
-                       state.bias_rad_s)
+        o.active = False
+        return False
+    half, covered = 0.5 * h_ns * 1e-9, (placed_ns - o.covered_ns) * 1e-9
+    p, held, b = o.last_rate_rad_s, o.held_rad, o.bias_rad_s
+    x = half * (rate_rad_s[0] + p[0]) - held[0] - b[0] * covered
+    y = half * (rate_rad_s[1] + p[1]) - held[1] - b[1] * covered
+    z = half * (rate_rad_s[2] + p[2]) - held[2] - b[2] * covered
+    t = o.turned_wxyz
+    _store4(t, turned_by((t[0], t[1], t[2], t[3]), x, y, z))
+    o.last_ns = o.covered_ns = placed_ns
+    vec3.store(o.last_rate_rad_s, rate_rad_s)
+    vec3.store(o.held_rad, vec3.ZERO)
+    return True
 
 
-def at(state: OutputState, stamp_ns: int, imu_delay_ns: int) -> Bingham:
-    """The predicted distribution at ``stamp_ns``: the last sample's rate (bias removed) held from the instant it
-    describes, ``imu_delay_ns`` before it, to the stamp."""
-    carry_s = max(0, stamp_ns - state.covered_ns + imu_delay_ns) * 1e-9
-    turned = quat.turned_by(state.turned_wxyz, [(r - b) * carry_s for r, b in zip(state.last_rate_rad_s, state.bias_rad_s)])
-    return state.base.rotate_right(np.array(turned))
+@njit(cache=True, nogil=True)
+def at(out: np.ndarray, stamp_ns: int, imu_delay_ns: int, M_out: np.ndarray) -> None:
+    """The predicted distribution at ``stamp_ns`` (``out[0]`` active): its principal directions into ``M_out``, its
+    concentrations are ``out[0].base_Z``. The last sample's rate (bias removed) held from the instant it describes,
+    ``imu_delay_ns`` before it, to the stamp."""
+    o = out[0]
+    carry_s = max(0, stamp_ns - o.covered_ns + imu_delay_ns) * 1e-9
+    r, b, t = o.last_rate_rad_s, o.bias_rad_s, o.turned_wxyz
+    turned = turned_by((t[0], t[1], t[2], t[3]), (r[0] - b[0]) * carry_s, (r[1] - b[1]) * carry_s, (r[2] - b[2]) * carry_s)
+    base = np.empty((4, 4))
+    for i in range(4):
+        for j in range(4):
+            base[i, j] = o.base_M[i, j]
+    M = rotated_right(_as_array(turned), base)
+    for i in range(4):
+        for j in range(4):
+            M_out[i, j] = M[i, j]
+
+
+@njit(cache=True, nogil=True)
+def _start(out: np.ndarray, tick_output: np.ndarray, state: np.ndarray) -> None:
+    """:func:`started` from the last tick's output (:data:`fuser.model.tick.TICK_OUTPUT`) and state record."""
+    o, s = tick_output[0], state[0]
+    started(out, o.published_M, o.published_Z, o.has_lead_rotation, o.lead_rotation, s.gyro, s.bias.estimate_rad_s)
+
+
+@njit(cache=True, nogil=True)
+def _advance(params: np.ndarray, out: np.ndarray, rate_rad_s: tuple, placed_ns: int) -> bool:
+    """:func:`advanced` with the model's parameters record array (an array: numba types it in a microsecond)."""
+    return advanced(params[0].gyro, out, rate_rad_s, placed_ns)
+
+
+class OutputPredictor:
+    """The predictor as the loop drives it: started by the model after each tick
+    (:meth:`fuser.model.FusionModel.start_output`), turned through each sample of the reference IMU
+    (:meth:`advance`), read at any instant (:meth:`at`)."""
+
+    def __init__(self, params: np.ndarray, imu_delay_ns: int) -> None:
+        self._params = params
+        self._imu_delay_ns = imu_delay_ns
+        self._out = np.zeros(1, OUTPUT)
+        self._M = np.empty((4, 4))
+
+    @property
+    def active(self) -> bool:
+        """False: nothing to predict until the next tick (no usable rate, a gap, a saturated sample, an IMU kept out)."""
+        return bool(self._out[0]["active"])
+
+    def start(self, tick_output: np.ndarray, state: np.ndarray) -> None:
+        """Start from a tick's output and the state after it (:func:`started`)."""
+        _start(self._out, tick_output, state)
+
+    def stop(self) -> None:
+        """No prediction until the next tick."""
+        self._out[0]["active"] = False
+
+    def advance(self, rate_rad_s: tuple[float, float, float], placed_ns: int) -> bool:
+        """Turn through one more sample of the reference IMU (:func:`advanced`); True if the prediction now ends there."""
+        return _advance(self._params, self._out, rate_rad_s, placed_ns)
+
+    def at(self, stamp_ns: int) -> Bingham:
+        """The predicted distribution at ``stamp_ns`` (:func:`at`)."""
+        at(self._out, stamp_ns, self._imu_delay_ns, self._M)
+        return Bingham._trusted(self._M.copy(), self._out[0]["base_Z"].copy())

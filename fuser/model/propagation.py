@@ -34,107 +34,149 @@ attitude is not turned, and the uncertainty grows at ``gyro.range_rad_s``.
 The rotation ``u`` and the noise ``w`` (isotropic) then give the prediction
 in closed form (progressive paper, Alg. 1: ``M`` rotated by ``u`` on the
 right, eq. 6; composition with ``w`` by moment matching, QBF paper, A.9).
+
+The noise's moments come from a table of coefficients computed once per
+model (:func:`noise_table`), after VQF's parameter / state / coefficient
+split (``VQFParams``, ``VQFState``, ``VQFCoefficients`` in dlaidig/vqf): the
+parameters are the settings (:mod:`fuser.model.params`), the state the record
+(:mod:`fuser.model.state`), and the coefficients what follows from the
+parameters alone.
+
+Compiled with numba for the tick (:func:`fuser.model.fusion.tick`): the gyro
+stream's track is the state's ``gyro`` part (:data:`fuser.model.state.GYRO`),
+changed in place; :class:`~fuser.model.tick.Motion` and
+:class:`~fuser.model.tick.Prediction` are what a tick hands on.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from functools import lru_cache
-from typing import Sequence
 
 import numpy as np
+from numba import njit
 
-from core import quaternion as quat
-from core.bingham import Bingham
-from core.normalization import Method
-from drivers.samples import ImuSample, Vec3
-from fuser.config import BiasSettings, GyroSettings
-from fuser.model.state import BiasState, GyroTrack
+from core import saddlepoint
+from core.bingham_kernels import rotated_right
+from core.normalization import _CONVERGED, MIN_MOMENT
+from core.quaternion_kernels import IDENTITY, from_rotvec
+from fuser.model import vec3
+from fuser.model.tick import Motion, Prediction
 
-__all__ = ["Motion", "Prediction", "integrate_gyro", "predict", "process_noise", "rotation_noise", "saturated"]
+__all__ = ["integrate_gyro", "isotropic_noise", "noise_table", "predict", "rate_hz", "saturated"]
 
-
-@dataclass(frozen=True, slots=True)
-class Motion:
-    """What the gyro says about one tick."""
-
-    raw_rotation_rad: np.ndarray
-    """Rotation vector integrated over the tick, bias not removed."""
-    known_s: float
-    """Seconds of the tick whose rate is known (sampled or held); the rest is a gap."""
-    closed_variance_rad2: float
-    """Interpolation error of the intervals closed in this tick, and the held rotation of a hold that ran out."""
-    gap_s: float
-    """Seconds of the tick without any rate (no sample yet, or the hold ran out)."""
-    saturated_s: float
-    """Seconds of the tick after a saturated sample: the rate is beyond the range or unknown."""
-    saturated_samples: int
-    hold_variance_rad2: float
-    """Error of the rate held at the tick's end: published, not in the state (corrected by the next sample)."""
-    gaps: int
-    """Intervals longer than ``gyro.max_interval_s``: not integrated."""
-    held: bool
-    """No sample in the tick: its rotation is the held rate's."""
-
-    @property
-    def raw_rate_rad_s(self) -> np.ndarray | None:
-        """Mean raw rate over the known part of the tick, None without one."""
-        return self.raw_rotation_rad / self.known_s if self.known_s > 0.0 else None
+_NOISE_STEPS = 20
+"""The process noise's variance in steps of 5%: the table's key is ``round(log(variance) * 20)``."""
+_NOISE_TABLE_SIZE = 4096
+"""Keys -2048 to 2047: variances from ``exp(-102)`` to ``exp(102)`` rad^2; one outside is computed each time."""
+_FIT_ITERATIONS = np.int64(60)  # an np.int64: a Python int would be a literal, compiled apart from Python callers' int
+"""Gauss-Newton steps of the composition's moment match at most (:func:`core.normalization.fit_dispersion_trusted`'s)."""
 
 
-def saturated(params: GyroSettings, rate: Vec3) -> bool:
-    """A gyro sample at or beyond ``saturation_fraction`` of the range on any axis (module docstring)."""
+@njit(cache=True, nogil=True)
+def saturated(params: np.record, rate: tuple) -> bool:
+    """A gyro sample at or beyond ``saturation_fraction`` of the range on any axis (module docstring); ``params`` the
+    ``gyro`` group (:mod:`fuser.model.params`)."""
     limit = params.saturation_fraction * params.range_rad_s
     return abs(rate[0]) >= limit or abs(rate[1]) >= limit or abs(rate[2]) >= limit
 
 
-def _merged(params: GyroSettings, samples: Sequence[ImuSample], placed_ns: Sequence[int]) -> list[tuple[int, Vec3, bool]]:
-    """The tick's gyro samples as one stream in time order, saturated or not; samples of several IMUs at one
-    instant averaged (the unsaturated ones, if any)."""
-    if all(a < b for a, b in zip(placed_ns, placed_ns[1:])):  # the common case, one IMU: every sample its own instant, in order
-        return [(t, s.gyro_rad_s, saturated(params, s.gyro_rad_s)) for s, t in zip(samples, placed_ns)]
-    by_time: dict[int, list[Vec3]] = {}
-    for s, t in zip(samples, placed_ns):
-        by_time.setdefault(t, []).append(s.gyro_rad_s)
-    out = []
-    for t in sorted(by_time):
-        rates = [r for r in by_time[t] if not saturated(params, r)]
-        if not rates:
-            out.append((t, by_time[t][0], True))
-        else:
-            out.append((t, rates[0] if len(rates) == 1 else tuple(sum(r[i] for r in rates) / len(rates) for i in range(3)), False))  # type: ignore[arg-type]
-    return out
+@njit(cache=True, nogil=True)
+def rate_hz(track: np.record, now_ns: int) -> float:
+    """The gyro stream's measured rate at ``now_ns`` (``track``: :data:`fuser.model.state.GYRO_TRACK`): a stream
+    that stops is slow."""
+    interval = max(track.interval_s if track.has_interval_s else 0.0, (now_ns - track.last_ns) * 1e-9)
+    return 1.0 / interval if interval > 0.0 else math.inf
 
 
-def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Sequence[ImuSample], placed_ns: Sequence[int],
-                   tick_start_ns: int, tick_end_ns: int) -> tuple[GyroTrack | None, Motion]:
+@njit(cache=True, nogil=True)
+def _merged(params: np.record, imu: np.ndarray, after: bool, after_ns: int) -> tuple:
+    """``(found, t_ns, rate, saturated)``: the tick's gyro stream at its first instant after ``after_ns`` (at its
+    first instant if not ``after``), saturated or not; the samples of several IMUs at one instant averaged (the
+    unsaturated ones, if any, in the tick's order; all saturated: the first). For a tick whose samples are not each
+    at its own instant in order: a scan per instant, no array (a few samples a tick)."""
+    found = False
+    t = 0
+    for i in range(imu.shape[0]):
+        ti = imu[i].placed_ns
+        if (not after or ti > after_ns) and (not found or ti < t):
+            found, t = True, ti
+    if not found:
+        return False, t, vec3.ZERO, False
+    count = 0
+    sx = sy = sz = 0.0
+    first = -1
+    first_any = -1
+    for i in range(imu.shape[0]):
+        if imu[i].placed_ns != t:
+            continue
+        if first_any < 0:
+            first_any = i
+        r = vec3.load(imu[i].gyro_rad_s)
+        if not saturated(params, r):
+            if count == 0:
+                first = i
+            sx, sy, sz = sx + r[0], sy + r[1], sz + r[2]
+            count += 1
+    if count == 0:
+        return True, t, vec3.load(imu[first_any].gyro_rad_s), True
+    if count == 1:
+        return True, t, vec3.load(imu[first].gyro_rad_s), False
+    return True, t, (sx / count, sy / count, sz / count), False
+
+
+@njit(cache=True, nogil=True)
+def integrate_gyro(params: np.record, gyro: np.record, imu: np.ndarray, tick_start_ns: int, tick_end_ns: int) -> Motion:
     """The gyro stream carried from ``tick_start_ns`` to ``tick_end_ns`` (the loop's timeline) with this tick's
-    samples (each at its placed time in the tick); the track after it (module docstring)."""
+    samples ``imu`` (:data:`fuser.model.tick.IMU_INPUT`, each at its placed time in the tick); ``gyro``'s track
+    (:data:`fuser.model.state.GYRO`) is changed to the one after it (module docstring). ``params`` the ``gyro``
+    group."""
     max_ns = round(params.max_interval_s * 1e9)
-    walk2 = params.rate_walk_rad_s_rt_s**2
+    walk2 = params.rate_walk_rad_s_rt_s * params.rate_walk_rad_s_rt_s
+    max_hold_variance = walk2 * (params.max_interval_s * params.max_interval_s * params.max_interval_s) / 3.0
     x = y = z = known_ns = gap_ns = saturated_ns = 0.0
     closed = 0.0
     gaps = saturated_samples = 0
-    # the track's fields as locals through the samples (a GyroTrack per sample cost more than the arithmetic)
-    started = track is not None
-    if track is not None:
-        last_ns, last_rate, covered_ns, held, interval_s, last_saturated = (
-            track.last_ns, track.last_rate_rad_s, track.covered_ns, track.held_rad, track.interval_s, track.saturated)
-    for t, rate, saturated in _merged(params, samples, placed_ns):
-        saturated_samples += saturated
+    # the track's fields as locals through the samples
+    track = gyro.track
+    started = gyro.has_track
+    last_ns, covered_ns = track.last_ns, track.covered_ns
+    last_rate = vec3.load(track.last_rate_rad_s)
+    held = vec3.load(track.held_rad)
+    has_interval, interval_s, last_saturated = track.has_interval_s, track.interval_s, track.saturated
+    n = imu.shape[0]
+    in_order = True  # the common case, one IMU: every sample its own instant, in order
+    for i in range(1, n):
+        if imu[i].placed_ns <= imu[i - 1].placed_ns:
+            in_order = False
+    k = 0
+    t = tick_start_ns  # an int64 from the start: a literal 0 would compile _merged a second time
+    while True:
+        if in_order:
+            if k == n:
+                break
+            t = imu[k].placed_ns
+            rate = vec3.load(imu[k].gyro_rad_s)
+            is_saturated = saturated(params, rate)
+        else:
+            found, t, rate, is_saturated = _merged(params, imu, k > 0, t)
+            if not found:
+                break
+        k += 1
+        if is_saturated:
+            saturated_samples += 1
         if not started:  # the first sample ever: nothing before it is known
             gap_ns += t - tick_start_ns
             started = True
-            last_ns, last_rate, covered_ns, held, interval_s, last_saturated = t, rate, t, (0.0, 0.0, 0.0), None, saturated
+            last_ns, last_rate, covered_ns, held, has_interval, interval_s, last_saturated = t, rate, t, vec3.ZERO, False, 0.0, is_saturated
             continue
         h_ns = t - last_ns
         h_s = h_ns * 1e-9
-        interval = h_s if interval_s is None else interval_s + min(1.0, h_s / params.rate_window_s) * (h_s - interval_s)
-        if saturated or last_saturated:  # no rate from the last good sample to the next: what a hold applied stays
+        interval = interval_s + min(1.0, h_s / params.rate_window_s) * (h_s - interval_s) if has_interval else h_s
+        if is_saturated or last_saturated:  # no rate from the last good sample to the next: what a hold applied stays
             saturated_ns += t - covered_ns
             if not last_saturated and covered_ns < last_ns + max_ns:
-                closed += walk2 * ((covered_ns - last_ns) * 1e-9) ** 3 / 3.0
+                held_s = (covered_ns - last_ns) * 1e-9
+                closed += walk2 * (held_s * held_s * held_s) / 3.0
         elif h_ns <= max_ns:
             h = h_ns * 1e-9
             half = 0.5 * h
@@ -142,7 +184,7 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
             y += half * (rate[1] + last_rate[1]) - held[1]
             z += half * (rate[2] + last_rate[2]) - held[2]
             known_ns += t - covered_ns
-            closed += walk2 * h**3 / 12.0
+            closed += walk2 * (h * h * h) / 12.0
         else:  # a gap: the rate is held to max_interval after the last sample (what it applied stays), then unknown
             gaps += 1
             hold_end = last_ns + max_ns
@@ -152,90 +194,144 @@ def integrate_gyro(params: GyroSettings, track: GyroTrack | None, samples: Seque
                 y += last_rate[1] * dt_hold
                 z += last_rate[2] * dt_hold
                 known_ns += hold_end - covered_ns
-                closed += walk2 * params.max_interval_s**3 / 3.0
+                closed += max_hold_variance
             gap_ns += t - max(covered_ns, hold_end)
-        last_ns, last_rate, covered_ns, held, interval_s, last_saturated = t, rate, t, (0.0, 0.0, 0.0), interval, saturated
+        last_ns, last_rate, covered_ns, held, has_interval, interval_s, last_saturated = t, rate, t, vec3.ZERO, True, interval, is_saturated
+    held_tick = imu.shape[0] == 0
     if not started:
-        return None, Motion(np.zeros(3), known_s=0.0, closed_variance_rad2=0.0, gap_s=(tick_end_ns - tick_start_ns) * 1e-9,
-                            saturated_s=0.0, saturated_samples=0, hold_variance_rad2=0.0, gaps=0, held=False)
+        return Motion(vec3.ZERO, 0.0, 0.0, (tick_end_ns - tick_start_ns) * 1e-9, 0.0, 0, 0.0, 0, False)
+    gyro.has_track = True
+    track.last_ns, track.covered_ns = last_ns, tick_end_ns
+    vec3.store(track.last_rate_rad_s, last_rate)
+    track.has_interval_s, track.interval_s, track.saturated = has_interval, interval_s, last_saturated
     if last_saturated:
         saturated_ns += tick_end_ns - covered_ns
-        track = GyroTrack(last_ns, last_rate, tick_end_ns, (0.0, 0.0, 0.0), interval_s, True)
-        motion = Motion(np.array([x, y, z]), known_ns * 1e-9, closed, gap_ns * 1e-9, saturated_ns * 1e-9, saturated_samples, 0.0, gaps,
-                        not samples)
-        return track, motion
+        vec3.store(track.held_rad, vec3.ZERO)
+        return Motion((x, y, z), known_ns * 1e-9, closed, gap_ns * 1e-9, saturated_ns * 1e-9, saturated_samples, 0.0, gaps, held_tick)
     # hold the last rate to the tick's end, for at most max_interval after the sample
     hold_end = min(tick_end_ns, last_ns + max_ns)
     start = covered_ns
     dt_hold = max(0, hold_end - start) * 1e-9
     hx, hy, hz = last_rate[0] * dt_hold, last_rate[1] * dt_hold, last_rate[2] * dt_hold
-    track = GyroTrack(last_ns, last_rate, tick_end_ns, (held[0] + hx, held[1] + hy, held[2] + hz), interval_s, False)
+    vec3.store(track.held_rad, (held[0] + hx, held[1] + hy, held[2] + hz))
     known_ns += max(0, hold_end - start)
     gap_ns += tick_end_ns - max(hold_end, start)
     age_s = (tick_end_ns - last_ns) * 1e-9
     if tick_end_ns - last_ns >= max_ns:
         if start < last_ns + max_ns:  # the hold runs out in this tick: what it applied stays unverified
-            closed += walk2 * params.max_interval_s**3 / 3.0
+            closed += max_hold_variance
         hold_variance = 0.0
     else:
-        hold_variance = walk2 * age_s**3 / 3.0
-    motion = Motion(np.array([x + hx, y + hy, z + hz]), known_ns * 1e-9, closed, gap_ns * 1e-9, saturated_ns * 1e-9, saturated_samples,
-                    hold_variance, gaps, not samples)
-    return track, motion
+        hold_variance = walk2 * (age_s * age_s * age_s) / 3.0
+    return Motion((x + hx, y + hy, z + hz), known_ns * 1e-9, closed, gap_ns * 1e-9, saturated_ns * 1e-9, saturated_samples,
+                  hold_variance, gaps, held_tick)
 
 
-def rotation_noise(variance_rad2: float) -> Bingham:
-    """Isotropic rotation noise whose per-axis angle variance is ``variance_rad2``.
+@njit(cache=True, nogil=True)
+def isotropic_noise(variance_rad2: float) -> tuple:
+    """``(M, Z)`` of the isotropic rotation noise whose per-axis angle variance is ``variance_rad2``: mode at the
+    identity (last column), ``Z = [z, z, z, 0]``.
 
     The vector part of a small rotation is half its angle, and a Bingham's
     ``E[y_i^2] -> 1/(2|z_i|)``, so ``z = -2 / variance``.
     """
+    M = np.empty((4, 4))
+    for i in range(4):
+        for j in range(4):
+            M[i, j] = 1.0 if i == (j + 1) % 4 else 0.0  # columns x, y, z, then the mode w
+    return M, _noise_concentrations(variance_rad2)
+
+
+@njit(cache=True, nogil=True)
+def _noise_concentrations(variance_rad2: float) -> np.ndarray:
+    """``Z = [z, z, z, 0]`` of :func:`isotropic_noise`."""
     z = -2.0 / variance_rad2
-    return Bingham.from_mode(quat.IDENTITY, [z, z, z])
+    Z = np.empty(4)
+    Z[0] = Z[1] = Z[2] = z
+    Z[3] = 0.0
+    return Z
 
 
-@lru_cache(maxsize=4096)
-def _noise_step(key: int) -> Bingham:
-    return rotation_noise(math.exp(key / 20.0))
+@njit(cache=True, nogil=True)
+def _noise_moment(variance_rad2: float) -> float:
+    """``b``: the first moment ``E[x_1^2]`` (each of the three vector axes') of :func:`isotropic_noise`."""
+    return saddlepoint.moments(_noise_concentrations(variance_rad2))[0]
 
 
-def process_noise(variance_rad2: float, floor_rad2: float) -> Bingham:
-    """The process noise for a variance, in steps of 5% (``exp(k / 20)``): ticks repeat their length and the
-    bias variance settles, so few distinct values occur and their moments are computed once."""
-    return _noise_step(round(math.log(max(variance_rad2, floor_rad2)) * 20))
+def noise_table() -> np.ndarray:
+    """The model's coefficients: the process noise's moment ``b`` (:func:`_noise_moment`) for each variance step
+    ``exp(k / 20)``, indexed by ``k`` plus half the table's size, NaN until a tick first needs it. Ticks repeat
+    their length and the bias variance settles, so few distinct values occur and each is computed once per model."""
+    return np.full(_NOISE_TABLE_SIZE, np.nan)
 
 
-@dataclass(frozen=True, slots=True)
-class Prediction:
-    """The predicted attitude and what the updates need to know about how it was predicted."""
+@njit(cache=True, nogil=True)
+def _process_noise_moment(variance_rad2: float, floor_rad2: float, table: np.ndarray) -> float:
+    """``b`` of the process noise for a variance, in steps of 5% (``exp(k / 20)``), through the ``table``
+    (:func:`noise_table`); a step beyond the table is computed each time."""
+    key = round(math.log(max(variance_rad2, floor_rad2)) * _NOISE_STEPS)  # half to even, as Python's
+    i = key + table.shape[0] // 2
+    if i < 0 or i >= table.shape[0]:
+        return _noise_moment(math.exp(key / _NOISE_STEPS))
+    if math.isnan(table[i]):
+        table[i] = _noise_moment(math.exp(key / _NOISE_STEPS))
+    return table[i]
 
-    attitude: Bingham
-    rotation: np.ndarray | None
-    """The tick's rotation ``u`` (None when no rate was known)."""
-    rate_rad_s: float | None
-    """Norm of the bias-corrected rate (None when no rate was known)."""
-    variance_rad2: float
-    """Per-axis angle variance of the tick's process noise."""
 
-
-def predict(gyro: GyroSettings, bias_params: BiasSettings, attitude: Bingham, bias: BiasState, motion: Motion, dt_s: float,
-            method: Method) -> Prediction:
-    """``attitude`` carried over the tick by the bias-corrected rotation, with the tick's process noise.
+@njit(cache=True, nogil=True)
+def predict(gyro: np.record, bias_params: np.record, attitude: np.record, bias: np.record, motion: Motion, dt_s: float,
+            noise_table: np.ndarray) -> Prediction:
+    """``attitude`` (:data:`fuser.model.state.ATTITUDE`) carried over the tick by the bias-corrected rotation, with
+    the tick's process noise; the state is not changed. ``gyro``, ``bias_params`` the parameter groups, ``bias`` the
+    state's (:data:`fuser.model.state.BIAS`), ``noise_table`` the coefficients (:func:`noise_table`).
 
     A residual bias error ``e`` persists: over its correlation time ``tau``
     it turns the attitude by ``e tau``, the same as white noise of variance
     ``e^2 tau dt`` per tick; ``(e dt)^2`` would understate it by ``tau/dt``
     and make the filter overconfident (and the bias loop underdamped).
+
+    The noise ``w`` is isotropic: its inertia is ``diag(a, b, b, b)`` and the
+    composed inertia ``a S + b (I - S)`` (:meth:`core.bingham.Bingham.compose`):
+    the principal directions are kept, the moments contract towards uniform,
+    ``omega' = (1 - 4 b) omega + b``, and ``Z`` is fitted to them from the
+    rotated distribution's.
     """
     correlation_s = bias_params.time_constant_s if bias_params.feedback_enabled else bias_params.correlation_without_feedback_s
-    variance = gyro.noise_rad_s_rt_hz**2 * dt_s + bias.variance_rad2_s2 * correlation_s * dt_s
-    variance += motion.closed_variance_rad2 + (gyro.gap_rate_rad_s * motion.gap_s) ** 2 + (gyro.range_rad_s * motion.saturated_s) ** 2
-    u = rate_norm = None
-    if motion.known_s > 0.0:
-        rotvec = motion.raw_rotation_rad - bias.estimate_rad_s * motion.known_s
-        angle = math.sqrt(float(rotvec @ rotvec))
+    c = bias.covariance_rad2_s2
+    bias_variance = (c[0, 0] + c[1, 1] + c[2, 2]) / 3.0  # fuser.model.bias.variance_rad2_s2
+    variance = gyro.noise_rad_s_rt_hz * gyro.noise_rad_s_rt_hz * dt_s + bias_variance * correlation_s * dt_s
+    gap = gyro.gap_rate_rad_s * motion.gap_s
+    unknown = gyro.range_rad_s * motion.saturated_s
+    variance += motion.closed_variance_rad2 + gap * gap + unknown * unknown
+    u = IDENTITY
+    has_rate = motion.known_s > 0.0
+    rate_norm = 0.0
+    M = np.empty((4, 4))  # the state's (not written), then rotated
+    for i in range(4):
+        for j in range(4):
+            M[i, j] = attitude.M[i, j]
+    if has_rate:
+        e = bias.estimate_rad_s
+        rx = motion.raw_rotation_rad[0] - e[0] * motion.known_s
+        ry = motion.raw_rotation_rad[1] - e[1] * motion.known_s
+        rz = motion.raw_rotation_rad[2] - e[2] * motion.known_s
+        angle = math.sqrt(rx * rx + ry * ry + rz * rz)
         rate_norm = angle / motion.known_s
-        u = quat.from_rotvec(rotvec)
-        variance += (gyro.scale_error_fraction * angle) ** 2
-    rotated = attitude if u is None else attitude.rotate_right(u)
-    return Prediction(rotated.compose(process_noise(variance, gyro.min_process_variance_rad2), method), u, rate_norm, variance)
+        u = from_rotvec(rx, ry, rz)
+        scale = gyro.scale_error_fraction * angle
+        variance += scale * scale
+        u_array = np.empty(4)
+        for i in range(4):
+            u_array[i] = u[i]
+        M = rotated_right(u_array, M)
+    # composed with the noise: the moments contracted towards uniform, Z fitted from the rotated distribution's
+    b = _process_noise_moment(variance, gyro.min_process_variance_rad2, noise_table)
+    start = np.empty(4)
+    for i in range(4):
+        start[i] = attitude.Z[i]
+    moments = saddlepoint.moments(start)
+    target = np.empty(4)
+    for i in range(4):
+        target[i] = (1.0 - 4.0 * b) * moments[i] + b
+    Z, fitted = saddlepoint.fit_moments(target, start, MIN_MOMENT, _CONVERGED, _FIT_ITERATIONS)
+    return Prediction(M, Z, fitted, has_rate, u, has_rate, rate_norm, variance)

@@ -1,173 +1,188 @@
-"""The fusion model's persistent state: one immutable value, read, set and reset as a whole.
+"""The fusion model's persistent state: one record, read, set and reset as a whole.
 
 After VQF's parameter / state / coefficient split (``VQFParams``,
-``VQFState``, ``VQFCoefficients`` in dlaidig/vqf): the parameters are the
-frozen :class:`fuser.config.FuserConfig`, the coefficients are derived from
-them once (:class:`fuser.model.heading.FieldReference`, the process-noise
-table), and everything a tick carries to the next is here. Each update
-module owns one part and returns a new one; nothing is changed in place, so
-a state read with :attr:`FusionModel.state <fuser.model.FusionModel.state>`
-stays valid after further ticks and can be set into another model.
+``VQFState``, ``VQFCoefficients`` in dlaidig/vqf): the parameters are
+:class:`fuser.config.FuserConfig` (laid out for the compiled tick by
+:mod:`fuser.model.params`), the coefficients are derived from them once (the
+process-noise table, :mod:`fuser.model.propagation`), and everything a tick
+carries to the next is here.
+
+Every number is in one numpy record of the nested dtype :data:`STATE`, one
+part per update module (``state.gravity``, ``state.bias``, ...), so that the
+compiled tick (:mod:`fuser.model.fusion`) reads and writes it at fixed
+offsets; each module's functions change their own part. A value that may be
+absent has a ``has_<name>`` flag beside it (the value is then zeros). Units
+are in the names. Beside the record: the accelerometer's history for the
+GNSS pairs (:mod:`fuser.model.velocity`, a ring whose size follows the loop
+rate), the reference field with where it came from (:mod:`fuser.model.field`,
+Python values, changed between ticks), and which IMU and which GNSS stream
+each slot of the record holds.
+
+:class:`FilterState` is a value to the model's user: :attr:`FusionModel.state
+<fuser.model.FusionModel.state>` returns a copy, which stays valid after
+further ticks and can be set into another model.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 
-from core import quaternion as quat
 from core.bingham import Bingham
-from drivers.samples import Vec3
+from drivers.samples import SourceId
 from fuser.config import FuserConfig, MagSettings
 from fuser.model.diagnostics import UpdateDiagnostic
-from fuser.model.imu_check import ImuCheckState
-from fuser.model_error import ModelErrorState
 
-__all__ = ["AttitudeState", "BiasState", "FieldState", "FilterState", "GnssStream", "GravityState", "GyroState", "GyroTrack",
-           "HeadingState", "RestState", "VelocityState", "initial_state"]
+__all__ = ["ATTITUDE", "ATTITUDE_SOURCE", "BIAS", "FieldState", "FilterState", "GRAVITY", "GYRO", "GYRO_TRACK", "HEADING", "IMU_CHECK",
+           "MAX_GNSS_STREAMS", "MAX_IMUS", "MODEL_ERROR", "REST", "STATE", "UNAIDED", "VELOCITY", "initial_state", "knot_capacity"]
 
-
-@dataclass(frozen=True, slots=True)
-class GyroTrack:
-    """The vehicle's gyro stream (all its IMUs) on the loop's timeline (:mod:`fuser.model.propagation`)."""
-
-    last_ns: int
-    """Time of the last gyro sample (ns, loop timeline)."""
-    last_rate_rad_s: Vec3
-    """Its raw rate (rad/s, bias not removed): the rate held until the next sample."""
-    covered_ns: int
-    """The attitude has been carried up to here (the last tick's end)."""
-    held_rad: Vec3
-    """Raw rotation the hold applied since ``last_ns``: taken back when the next sample closes the interval."""
-    interval_s: float | None = None
-    """Interval between samples, low-passed over ``gyro.rate_window_s`` (None before the second sample)."""
-    saturated: bool = False
-    """The last sample was saturated: the rate since it is unknown."""
-
-    def rate_hz(self, now_ns: int) -> float:
-        """The stream's measured rate at ``now_ns``: a stream that stops is slow."""
-        interval = max(self.interval_s or 0.0, (now_ns - self.last_ns) * 1e-9)
-        return 1.0 / interval if interval > 0.0 else math.inf
+MAX_IMUS = 16
+"""IMUs of the one vehicle the IMU check compares (ArduPilot has up to 3, PX4 up to 4)."""
+MAX_GNSS_STREAMS = 8
+"""GNSS streams (a receiver's fix and an autopilot's solution per source) the velocity aiding keeps."""
 
 
-@dataclass(frozen=True, slots=True)
-class GyroState:
-    track: GyroTrack | None = None
-    """None until the first gyro sample."""
-    rate_rad_s: float = 0.0
-    """Norm of the last known bias-corrected rate: the bias feedback learns only below its threshold."""
-    last_imu_tick_ns: int | None = None
-    """The last tick that held IMU samples: the gravity and rest updates count their readings per interval."""
+def _record(*fields: tuple) -> np.dtype:
+    return np.dtype(list(fields), align=True)
 
 
-@dataclass(frozen=True, slots=True)
-class BiasState:
-    """The gyro bias (rad/s, body FRD), a Gaussian beside the attitude (:mod:`fuser.model.bias`)."""
+GYRO_TRACK = _record(
+    ("last_ns", "i8"),  # time of the last gyro sample (ns, loop timeline)
+    ("last_rate_rad_s", "f8", (3,)),  # its raw rate (bias not removed): the rate held until the next sample
+    ("covered_ns", "i8"),  # the attitude has been carried up to here (the last tick's end)
+    ("held_rad", "f8", (3,)),  # raw rotation the hold applied since last_ns: taken back when the next sample closes the interval
+    ("has_interval_s", "?"),
+    ("interval_s", "f8"),  # interval between samples, low-passed over gyro.rate_window_s (from the second sample)
+    ("saturated", "?"),  # the last sample was saturated: the rate since it is unknown
+)
+"""The vehicle's gyro stream (all its IMUs) on the loop's timeline (:mod:`fuser.model.propagation`)."""
 
-    estimate_rad_s: np.ndarray
-    covariance_rad2_s2: np.ndarray
-    """3x3 covariance of the estimate's error ((rad/s)^2)."""
-    rotation_lp: np.ndarray | None = None
-    """The attitude's rotation matrix (body -> world) low-passed for the motion estimate: after the tilt
-    correction's first and second stage, and after the heading correction's one (3 x 3 x 3; None until the first
-    reading)."""
-    rotated_lp_rad_s: np.ndarray | None = None
-    """The rotated estimate ``R b`` through the same stages (3 x 3)."""
-    tilt_aided: bool = False
-    """The tilt correction the stages follow is GNSS-aided (:mod:`fuser.model.velocity`), not the plain one."""
-    tilt_settled_s: float = 0.0
-    """Seconds the stages have followed that same tilt correction (they start again when it changes)."""
+GYRO = _record(
+    ("has_track", "?"),  # False until the first gyro sample
+    ("track", GYRO_TRACK),
+    ("rate_rad_s", "f8"),  # norm of the last known bias-corrected rate: the bias feedback learns only below its threshold
+    ("has_last_imu_tick_ns", "?"),
+    ("last_imu_tick_ns", "i8"),  # the last tick that held IMU samples: gravity and rest count their readings per interval
+)
 
-    @property
-    def variance_rad2_s2(self) -> float:
-        """Mean per-axis variance: the uncertainty the time constants and the process noise scale with."""
-        c = self.covariance_rad2_s2  # the diagonal read directly: np.trace's call costs ten times the sum, every tick
-        return (float(c[0, 0]) + float(c[1, 1]) + float(c[2, 2])) / 3.0
+BIAS = _record(
+    ("estimate_rad_s", "f8", (3,)),  # body FRD
+    ("covariance_rad2_s2", "f8", (3, 3)),  # of the estimate's error
+    ("has_lp", "?"),
+    ("rotation_lp", "f8", (3, 3, 3)),  # body -> world rotation low-passed: tilt stages 1 and 2, heading stage
+    ("rotated_lp_rad_s", "f8", (3, 3)),  # the rotated estimate R b through the same stages
+    ("tilt_aided", "?"),  # the tilt correction the stages follow is GNSS-aided, not the plain one
+    ("tilt_settled_s", "f8"),  # seconds the stages have followed that same tilt correction
+)
+"""The gyro bias (rad/s), a Gaussian beside the attitude (:mod:`fuser.model.bias`)."""
 
-    def with_covariance(self, covariance_rad2_s2: np.ndarray) -> BiasState:
-        return self.with_estimate(self.estimate_rad_s, covariance_rad2_s2)
+REST = _record(
+    ("has_lp", "?"),
+    ("gyro_lp_rad_s", "f8", (3,)),
+    ("accel_lp_m_s2", "f8", (3,)),
+    ("still_s", "f8"),
+    ("at_rest", "?"),
+)
+"""Rest detector (VQF, rest detection): low-passed gyro and accelerometer, seconds still, and the verdict (:mod:`fuser.model.rest`)."""
 
-    def with_estimate(self, estimate_rad_s: np.ndarray, covariance_rad2_s2: np.ndarray) -> BiasState:
-        # built directly rather than by dataclasses.replace, which costs microseconds a call on the tick's path
-        return BiasState(estimate_rad_s, covariance_rad2_s2, self.rotation_lp, self.rotated_lp_rad_s, self.tilt_aided, self.tilt_settled_s)
+GRAVITY = _record(
+    ("q_strapdown", "f8", (4,)),  # gyro-only attitude, never corrected: the almost-inertial frame of the low-pass
+    ("has_accel_lp", "?"),
+    ("accel_lp_m_s2", "f8", (3,)),  # low-passed specific force in that frame
+    ("down_body", "f8", (3,)),  # last measured direction of down in the body frame: the magnetometer's dip reference
+    ("converged", "?"),  # once converged the raw accelerometer is not trusted again (until a gyro gap breaks the frame)
+    ("tilt_known", "?"),  # a gravity reading has been fused: the heading may be measured
+    ("gated_s", "f8"),  # seconds of continuous gating by innovation
+    ("has_raw_mean", "?"),
+    ("raw_mean_m_s2", "f8", (3,)),  # mean of the raw readings fused before convergence, in the strapdown frame
+    ("raw_s", "f8"),  # seconds of raw readings in that mean
+    ("measured_body", "f8", (3,)),  # the last measured specific force's direction, negated, in the body frame
+    ("gnss_checked", "?"),  # a raw reading has been compared with the first GNSS acceleration
+    ("measured_world", "f8", (3,)),  # the world direction it was measured as (with measured_body: the dip gate's)
+)
+"""The gravity update's memory (:mod:`fuser.model.gravity`)."""
 
+UNAIDED = _record(
+    ("excess_m2_s4", "f8"),  # the low-passed specific force's signed |f|^2 - g^2, as far as the estimate followed it
+    ("has_norm_mean", "?"),
+    ("norm_mean_m_s2", "f8", (3,)),  # long-run mean of the specific force in the strapdown frame
+    ("norm_mean_s", "f8"),
+    ("absorbed_rad", "f8", (2,)),  # north and east of the tilt the plain corrections moved the estimate by, with a leak
+)
+"""What the unaided accelerometer cannot tell from gravity (:mod:`fuser.model.unaided`)."""
 
-@dataclass(frozen=True, slots=True)
-class RestState:
-    """Rest detector (VQF, rest detection): low-passed gyro and accelerometer, seconds still, and the verdict."""
+HEADING = _record(
+    ("gated_s", "f8"),  # seconds of continuous gating by innovation
+    ("has_last_reading_ns", "?"),
+    ("last_reading_ns", "i8"),  # tick of the last magnetometer reading
+)
 
-    gyro_lp_rad_s: np.ndarray | None = None
-    accel_lp_m_s2: np.ndarray | None = None
-    still_s: float = 0.0
-    at_rest: bool = False
+ATTITUDE_SOURCE = _record(
+    ("gated_s", "f8"),  # seconds the autopilot's attitude has been kept out as a jump
+    ("has_last_fused_ns", "?"),
+    ("last_fused_ns", "i8"),
+)
+"""The autopilot's attitude as a measurement (:mod:`fuser.model.attitude`)."""
 
+IMU_CHECK = _record(
+    ("seen", "u1", (MAX_IMUS,)),  # per IMU slot, 1: its latest sample below (u1: numba types no bool sub-arrays)
+    ("t_ns", "i8", (MAX_IMUS,)),
+    ("gyro_rad_s", "f8", (MAX_IMUS, 3)),
+    ("accel_m_s2", "f8", (MAX_IMUS, 3)),
+    ("roughness_rad2_s2", "f8", (MAX_IMUS,)),
+    ("has_last_fault_ns", "?"),
+    ("last_fault_ns", "i8"),  # when a sample was last kept out
+)
+"""Each IMU's latest sample, for the cross-check (:mod:`fuser.model.imu_check`)."""
 
-@dataclass(frozen=True, slots=True)
-class GravityState:
-    """The gravity update's memory: the low-passed specific force in the gyro-only strapdown frame."""
+MODEL_ERROR = _record(("rate_sq", "f8"),)  # low-passed squared bias-corrected rotation rate, (rad/s)^2
+"""The recent rotation rate the model error scales with (:mod:`fuser.model_error`)."""
 
-    q_strapdown: np.ndarray = field(default_factory=lambda: quat.IDENTITY.copy())
-    """Gyro-only attitude (never corrected): the almost-inertial frame of the low-pass (VQF, inclination correction)."""
-    accel_lp_m_s2: np.ndarray | None = None
-    """Low-passed specific force in that frame."""
-    down_body: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
-    """Last measured direction of down in the body frame: the magnetometer's dip reference."""
-    converged: bool = False
-    """Once the state has converged the raw accelerometer is not trusted again (until a gyro gap breaks the frame)."""
-    tilt_known: bool = False
-    """A gravity reading has been fused: the heading may be measured."""
-    gated_s: float = 0.0
-    """Seconds of continuous gating by innovation (re-anchored after ``updates.reanchor_after_s``)."""
-    raw_mean_m_s2: np.ndarray | None = None
-    """Mean of the raw readings fused before convergence, in the strapdown frame (None: none since the low-pass was
-    last in use or the frame broke): what the estimate has followed, and where the low-pass starts."""
-    raw_s: float = 0.0
-    """Seconds of raw readings in that mean."""
-    measured_body: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
-    """The last measured specific force's direction, negated (down at rest), in the body frame."""
-    gnss_checked: bool = False
-    """A raw reading has been compared with the first GNSS acceleration (once: the readings before it were all
-    taken for down; after a broken frame the aided update's state is the one to keep)."""
-    measured_world: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 1.0]))
-    """The world direction it was measured as: down without GNSS, gravity minus the GNSS acceleration with it (its
-    vertical part taken as zero when the fixes have none). With ``measured_body`` the magnetometer's dip gate
-    (:mod:`fuser.model.heading`), which neither may depend on the estimate."""
+VELOCITY = _record(
+    ("stream_seen", "u1", (MAX_GNSS_STREAMS,)),  # per GNSS stream slot, 1: its last new fix below (u1, as IMU_CHECK.seen)
+    ("stream_rank", "i8", (MAX_GNSS_STREAMS,)),  # the slots' order by (source, filtered), set by the model
+    ("stream_measured_ns", "i8", (MAX_GNSS_STREAMS,)),  # when its velocity was measured (placed time minus the latency)
+    ("stream_vel_ned_m_s", "f8", (MAX_GNSS_STREAMS, 3)),
+    ("stream_vertical", "u1", (MAX_GNSS_STREAMS,)),  # 1: its down component was measured
+    ("stream_noise_m_s", "f8", (MAX_GNSS_STREAMS,)),  # one-sigma velocity noise per axis
+    ("knots_first", "i8"),  # the accelerometer's history: the ring's first knot (FilterState.knots)
+    ("knots_count", "i8"),
+    ("has_lp", "?"),  # aiding: the two low-passes below
+    ("body_lp_m_s2", "f8", (3,)),  # low-pass of the minus specific force over the GNSS intervals, strapdown frame
+    ("world_lp_m_s2", "f8", (3,)),  # the same low-pass of g e_z - a (NED)
+    ("vertical", "?"),  # the last pair's vertical acceleration was measured
+    ("noise_var_m2_s4", "f8"),  # variance per axis of the GNSS velocity noise left in the world low-pass
+    ("noise_cov_m2_s3", "f8"),  # its covariance with the last fix's velocity noise
+    ("has_last_fused_ns", "?"),
+    ("last_fused_ns", "i8"),  # the tick that last fused a pair into the low-pass
+    ("has_recent", "?"),
+    ("recent_world_m_s2", "f8", (3,)),  # g e_z - a of the pairs low-passed over gnss.raw_lowpass_s, aiding or not
+    ("recent_ns", "i8"),  # when the newest pair in it was measured (the middle of its interval)
+    ("recent_noise_var_m2_s4", "f8"),
+    ("recent_noise_cov_m2_s3", "f8"),
+)
+"""GNSS velocity aiding's memory (:mod:`fuser.model.velocity`)."""
 
+ATTITUDE = _record(("M", "f8", (4, 4)), ("Z", "f8", (4,)))
+"""The filter's Bingham over the attitude quaternion (body FRD -> world NED): :class:`core.bingham.Bingham`'s parameters."""
 
-@dataclass(frozen=True, slots=True)
-class UnaidedState:
-    """What the accelerometer's norm reveals of an acceleration it cannot tell from gravity (:mod:`fuser.model.unaided`)."""
-
-    excess_m2_s4: float = 0.0
-    """The low-passed specific force's signed excess norm ``|f|^2 - g^2``, as far as the estimate has followed it."""
-    norm_mean_m_s2: np.ndarray | None = None
-    """Long-run mean of the specific force in the strapdown frame: gravity as this sensor reads it, its scale error
-    and bias included (None: none yet, or the frame broke)."""
-    norm_mean_s: float = 0.0
-    """Seconds of readings in that mean."""
-    absorbed_rad: tuple[float, float] = (0.0, 0.0)
-    """North and east (world frame) of the tilt the plain gravity update's corrections have moved the estimate by,
-    summed with a leak: what a false vertical may have put into it (:func:`fuser.model.unaided.absorbed`)."""
-
-
-@dataclass(frozen=True, slots=True)
-class HeadingState:
-    gated_s: float = 0.0
-    """Seconds of continuous gating by innovation."""
-    last_reading_ns: int | None = None
-    """Tick of the last magnetometer reading: the heading's correlated error is counted per interval."""
-
-
-@dataclass(frozen=True, slots=True)
-class AttitudeState:
-    gated_s: float = 0.0
-    """Seconds the autopilot's attitude has been kept out as a jump."""
-    last_fused_ns: int | None = None
-    """The tick that last fused it."""
-
+STATE = _record(
+    ("attitude", ATTITUDE),
+    ("bias", BIAS),
+    ("gyro", GYRO),
+    ("rest", REST),
+    ("gravity", GRAVITY),
+    ("heading", HEADING),
+    ("attitude_source", ATTITUDE_SOURCE),
+    ("imu_check", IMU_CHECK),
+    ("model_error", MODEL_ERROR),
+    ("velocity", VELOCITY),
+    ("unaided", UNAIDED),
+)
+"""Everything numeric one tick hands to the next."""
 
 FieldSource = Literal["config", "wmm", "fallback"]
 DateSource = Literal["config", "gnss", "timeline", "undated"]
@@ -203,76 +218,68 @@ class FieldState:
         return UpdateDiagnostic("mag_field", "fused", self.source, values=tuple(values.items()))
 
 
-@dataclass(frozen=True, slots=True)
-class GnssStream:
-    """One GNSS stream's last new fix (:mod:`fuser.model.velocity`)."""
-
-    key: tuple
-    """(source, filtered): a receiver's fix and an autopilot's solution from one source are two streams."""
-    measured_ns: int
-    """When its velocity was measured, on the loop's timeline (placed time minus the latency)."""
-    vel_ned_m_s: Vec3
-    vertical: bool
-    """Its down component was measured."""
-    noise_m_s: float
-    """One-sigma velocity noise per axis."""
+def knot_capacity(config: FuserConfig) -> int:
+    """The accelerometer history's ring size: the knots of ``gnss.max_age_s`` plus the fixes' latency and two
+    ticks, at the loop's rate (:func:`fuser.model.velocity.track_velocity` keeps the last one before that horizon)."""
+    horizon_s = config.gnss.max_age_s + max(config.gnss.latency_ms, config.gnss.filtered_latency_ms) * 1e-3
+    return math.ceil(horizon_s * config.rate_hz) + 8
 
 
-@dataclass(frozen=True, slots=True)
-class VelocityState:
-    """GNSS velocity aiding's memory (:mod:`fuser.model.velocity`)."""
-
-    streams: tuple[GnssStream, ...] = ()
-    force_knots: tuple[tuple[int, np.ndarray, np.ndarray], ...] = ()
-    """(tick ns, integral of the specific force in the strapdown frame since the first knot (m/s), the tick's mean
-    specific force there (m/s^2)): the accelerometer's history, delayed to the GNSS intervals."""
-    body_lp_m_s2: np.ndarray | None = None
-    """Low-pass of the minus specific force over the GNSS intervals, in the strapdown frame (None: not aiding)."""
-    world_lp_m_s2: np.ndarray | None = None
-    """The same low-pass of ``g e_z - a`` (NED), ``a`` the GNSS acceleration over the same intervals."""
-    vertical: bool = True
-    """The last pair's vertical acceleration was measured (else taken as zero in the low-pass)."""
-    noise_var_m2_s4: float = 0.0
-    """Variance (per axis) of the GNSS velocity noise left in the world low-pass, (m/s^2)^2."""
-    noise_cov_m2_s3: float = 0.0
-    """Its covariance with the last fix's velocity noise (the next difference shares that fix), m^2/s^3."""
-    last_fused_ns: int | None = None
-    """The tick that last fused a pair into the low-pass."""
-    recent_world_m_s2: np.ndarray | None = None
-    """``g e_z - a``, ``a`` the pairs of fixes' mean acceleration (its vertical part zero when the fixes have none)
-    low-passed over ``gnss.raw_lowpass_s``, aiding or not: what the gravity update's raw readings measure in the
-    world (None: no pair yet)."""
-    recent_ns: int | None = None
-    """When the newest pair in it was measured (the middle of its interval)."""
-    recent_noise_var_m2_s4: float = 0.0
-    """Variance (per axis) of the velocity noise left in it, (m/s^2)^2."""
-    recent_noise_cov_m2_s3: float = 0.0
-    """Its covariance with the last fix's velocity noise, m^2/s^3."""
-
-
-@dataclass(frozen=True, slots=True)
+@dataclass(eq=False)
 class FilterState:
-    """Everything one tick hands to the next."""
+    """Everything one tick hands to the next (module docstring). The parts of the record are read as attributes:
+    ``state.gravity.converged``, ``state.bias.estimate_rad_s``; ``state.attitude`` is the Bingham."""
 
-    attitude: Bingham
-    """The filter's Bingham over the attitude quaternion (body FRD -> world NED)."""
-    bias: BiasState
-    gyro: GyroState = GyroState()
-    rest: RestState = RestState()
-    gravity: GravityState = GravityState()
-    heading: HeadingState = HeadingState()
-    attitude_source: AttitudeState = AttitudeState()
-    imu_check: ImuCheckState = ImuCheckState()
-    model_error: ModelErrorState = ModelErrorState()
-    velocity: VelocityState = VelocityState()
-    field: FieldState = FieldState.of(MagSettings())
-    """The reference field (the default settings' until :func:`initial_state` gives the configured one)."""
-    unaided: UnaidedState = UnaidedState()
-    """An acceleration the unaided accelerometer cannot tell from gravity (:mod:`fuser.model.unaided`)."""
+    record: np.ndarray
+    """The numbers: a record array of length one, dtype :data:`STATE`."""
+    knots_ns: np.ndarray
+    """The accelerometer's history for the GNSS pairs: each knot's tick (ns), a ring of ``record["velocity"]``'s
+    ``knots_first`` and ``knots_count`` (:mod:`fuser.model.velocity`)."""
+    knots: np.ndarray
+    """Each knot's integral of the specific force in the strapdown frame (m/s) and the tick's mean specific force
+    there (m/s^2): ``(capacity, 6)``."""
+    field: FieldState
+    """The reference field in use (:mod:`fuser.model.field`)."""
+    imu_slots: tuple[SourceId, ...] = ()
+    """The IMU whose latest sample each slot of ``imu_check`` holds, in order of first arrival."""
+    gnss_slots: tuple[tuple[SourceId, bool], ...] = ()
+    """The GNSS stream (source, filtered) each stream slot of ``velocity`` holds, in order of first arrival."""
+
+    def copy(self) -> FilterState:
+        """An independent copy."""
+        return FilterState(self.record.copy(), self.knots_ns.copy(), self.knots.copy(), self.field, self.imu_slots, self.gnss_slots)
+
+    def _part(self, name: str) -> np.record:
+        return self.record.view(np.recarray)[0][name]
+
+    @property
+    def attitude(self) -> Bingham:
+        """The filter's Bingham over the attitude quaternion (body FRD -> world NED)."""
+        part = self.record[0]["attitude"]
+        return Bingham(part["M"], part["Z"])
+
+    bias = property(lambda self: self._part("bias"), doc="The gyro bias (:data:`BIAS`).")
+    gyro = property(lambda self: self._part("gyro"), doc="The gyro stream (:data:`GYRO`).")
+    rest = property(lambda self: self._part("rest"), doc="The rest detector (:data:`REST`).")
+    gravity = property(lambda self: self._part("gravity"), doc="The gravity update's memory (:data:`GRAVITY`).")
+    heading = property(lambda self: self._part("heading"), doc="The heading update's (:data:`HEADING`).")
+    attitude_source = property(lambda self: self._part("attitude_source"), doc="The autopilot's attitude's (:data:`ATTITUDE_SOURCE`).")
+    imu_check = property(lambda self: self._part("imu_check"), doc="The IMU check's (:data:`IMU_CHECK`).")
+    model_error = property(lambda self: self._part("model_error"), doc="The model error's (:data:`MODEL_ERROR`).")
+    velocity = property(lambda self: self._part("velocity"), doc="GNSS velocity aiding's (:data:`VELOCITY`).")
+    unaided = property(lambda self: self._part("unaided"), doc="The unaided accelerometer's (:data:`UNAIDED`).")
 
 
 def initial_state(config: FuserConfig) -> FilterState:
     """The start: a uniform attitude (no prior knowledge needed), zero bias with its initial uncertainty, the
     configured reference field (or the fallback until a GNSS position)."""
-    return FilterState(attitude=Bingham.uniform(), bias=BiasState(np.zeros(3), config.bias.initial_sigma_rad_s**2 * np.eye(3)),
-                       field=FieldState.of(config.mag))
+    record = np.zeros(1, STATE)
+    s = record[0]
+    uniform = Bingham.uniform()
+    s["attitude"]["M"], s["attitude"]["Z"] = uniform.M, uniform.Z
+    s["bias"]["covariance_rad2_s2"] = config.bias.initial_sigma_rad_s**2 * np.eye(3)
+    s["gravity"]["q_strapdown"] = (1.0, 0.0, 0.0, 0.0)
+    s["gravity"]["down_body"] = s["gravity"]["measured_body"] = s["gravity"]["measured_world"] = (0.0, 0.0, 1.0)
+    s["velocity"]["vertical"] = True
+    capacity = knot_capacity(config)
+    return FilterState(record, np.zeros(capacity, np.int64), np.zeros((capacity, 6)), FieldState.of(config.mag))

@@ -10,7 +10,7 @@ returns a :class:`TickResult`, plain values; the loop builds the wire
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from typing import Mapping, NamedTuple, Sequence
 
 import numpy as np
 
@@ -18,7 +18,43 @@ from core.bingham import Bingham
 from drivers.samples import Sample
 from fuser.model.diagnostics import UpdateDiagnostic
 
-__all__ = ["TickContext", "TickInput", "TickResult"]
+__all__ = ["GNSS_INPUT", "IMU_INPUT", "TICK_OUTPUT", "GravityReading", "HeadingReading", "Lead", "Motion", "Prediction", "TickContext",
+           "TickInput", "TickResult", "VelocityTrack"]
+
+IMU_INPUT = np.dtype([
+    ("placed_ns", "i8"),  # on the loop's timeline
+    ("gyro_rad_s", "f8", (3,)),
+    ("accel_m_s2", "f8", (3,)),
+    ("has_mag", "?"),
+    ("mag_gauss", "f8", (3,)),
+    ("slot", "i8"),  # its IMU's slot in the state (FilterState.imu_slots)
+], align=True)
+"""The tick's IMU samples as the compiled tick reads them (:class:`drivers.samples.ImuSample`), in the tick's order."""
+
+GNSS_INPUT = np.dtype([
+    ("placed_ns", "i8"),
+    ("fix_type", "i8"),
+    ("has_velocity", "?"),
+    ("vel_ned_m_s", "f8", (3,)),
+    ("vertical_velocity", "?"),
+    ("has_speed_accuracy", "?"),
+    ("speed_accuracy_m_s", "f8"),
+    ("filtered", "?"),
+    ("slot", "i8"),  # its stream's slot in the state (FilterState.gnss_slots)
+], align=True)
+"""The tick's GNSS fixes (:class:`drivers.samples.GnssSample`; the position is read by :mod:`fuser.model.field`)."""
+
+TICK_OUTPUT = np.dtype([
+    ("published_M", "f8", (4, 4)),
+    ("published_Z", "f8", (4,)),
+    ("uncertainty_deg", "f8"),
+    ("has_lead_rotation", "?"),
+    ("lead_rotation", "f8", (4,)),
+    ("imu_fault", "?"),
+    ("diagnostics", "i8"),  # how many records of the diagnostics array the tick wrote
+    ("events", "i8"),  # how many (code, count) pairs of the events arrays
+], align=True)
+"""What the compiled tick returns besides its diagnostics and events (:class:`TickResult`'s numbers)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -36,8 +72,7 @@ class TickInput:
     ``(t_ns - dt_ns, t_ns]``; None: the samples' own times are on the loop's clock."""
 
 
-@dataclass(frozen=True, slots=True)
-class TickContext:
+class TickContext(NamedTuple):
     """Per-tick values the prediction hands to every update (passed explicitly, never kept on the model)."""
 
     dt_s: float
@@ -48,6 +83,99 @@ class TickContext:
     prior_tilt_doubt_deg: float
     """Its tilt's alone (:func:`fuser.model.velocity.tilt_doubt_deg`): the gravity update's convergence and checks,
     the gains of the tilt corrections the bias learns from."""
+
+
+class Motion(NamedTuple):
+    """What the gyro says about one tick (:func:`fuser.model.propagation.integrate_gyro`)."""
+
+    raw_rotation_rad: tuple
+    """Rotation vector integrated over the tick, bias not removed."""
+    known_s: float
+    """Seconds of the tick whose rate is known (sampled or held); the rest is a gap. The mean raw rate over the
+    known part is ``raw_rotation_rad / known_s`` when this is positive."""
+    closed_variance_rad2: float
+    """Interpolation error of the intervals closed in this tick, and the held rotation of a hold that ran out."""
+    gap_s: float
+    """Seconds of the tick without any rate (no sample yet, or the hold ran out)."""
+    saturated_s: float
+    """Seconds of the tick after a saturated sample: the rate is beyond the range or unknown."""
+    saturated_samples: int
+    hold_variance_rad2: float
+    """Error of the rate held at the tick's end: published, not in the state (corrected by the next sample)."""
+    gaps: int
+    """Intervals longer than ``gyro.max_interval_s``: not integrated."""
+    held: bool
+    """No sample in the tick: its rotation is the held rate's."""
+
+
+class Prediction(NamedTuple):
+    """The predicted attitude and what the updates need to know about how it was predicted
+    (:func:`fuser.model.propagation.predict`)."""
+
+    M: np.ndarray
+    Z: np.ndarray
+    moments: np.ndarray
+    """The predicted Bingham's parameters and its moments ``E[(M^T x)_i^2]``."""
+    has_rotation: bool
+    rotation: tuple
+    """The tick's rotation ``u`` (identity when no rate was known)."""
+    has_rate: bool
+    rate_rad_s: float
+    """Norm of the bias-corrected rate (when a rate was known)."""
+    variance_rad2: float
+    """Per-axis angle variance of the tick's process noise."""
+
+
+class VelocityTrack(NamedTuple):
+    """One tick of the GNSS side (:func:`fuser.model.velocity.track_velocity`): whether it aids, and how."""
+
+    active: bool
+    """Aiding is on: the gravity update is the aided one, not the plain one."""
+    fused: bool
+    """A pair entered the low-pass in this tick: the aided update has a new reading."""
+    interval_s: float
+    """Seconds since the previous tick that fused a pair (the aided readings' spacing)."""
+    moving: bool
+    """A fix within ``max_age_s`` is faster than ``gnss.moving_speed_m_s``: the vehicle is not at rest."""
+    lost: bool
+    """The aiding ended this tick (the ``gnss_lost`` event)."""
+
+
+class GravityReading(NamedTuple):
+    """One tick's gravity update (:mod:`fuser.model.gravity`, or its GNSS-aided variant in :mod:`fuser.model.velocity`)."""
+
+    fused: bool
+    """``exponent`` is a likelihood to multiply into the state (False: nothing fused, ``exponent`` zeros)."""
+    exponent: np.ndarray
+    apply_now: bool
+    """The first tilt ever measured: apply it before the heading update, which needs to know which way is down."""
+    trusted: bool
+    """The accelerometer was converged and well inside its norm gate: the bias feedback may learn this tick."""
+    diagnostic: object
+    """:class:`fuser.model.diagnostics.Diagnostic` (not ``present``: no reading this tick, GNSS-aided between two fixes)."""
+    has_tilt_bound: bool
+    tilt_bound_rad: float
+    """A GNSS-aided reading's bound on the prediction's tilt error: its innovation plus twice its noise."""
+    restart: bool
+    """The fast start runs again: the state had converged on raw readings the GNSS acceleration shows wrong."""
+
+
+class HeadingReading(NamedTuple):
+    """One tick's heading update (:func:`fuser.model.heading.update_heading`)."""
+
+    fused: bool
+    exponent: np.ndarray
+    diagnostic: object
+    """:class:`fuser.model.diagnostics.Diagnostic`."""
+
+
+class Lead(NamedTuple):
+    """The published state's rotation over the lead and the per-axis variance it adds (:func:`fuser.model.extrapolation.lead`)."""
+
+    has_rotation: bool
+    rotation: tuple
+    """Body-frame rotation ``u`` (published ``x (x) u``; identity when not turned)."""
+    variance_rad2: float
 
 
 @dataclass(frozen=True, slots=True)

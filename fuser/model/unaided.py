@@ -80,6 +80,10 @@ gain, reading by reading (:func:`corrected`), and the widening shrinks only as
 fast. After a saturated gyro in a 20-deg banked turn (``tests/fault_flights.py``)
 the estimate is 15 deg off for 3 s while the first aided readings, noisy, count
 for little; it reported 5 deg before this, 12-15 deg with it.
+
+Compiled (numba) for the tick (:mod:`fuser.model.fusion`): the memory is the
+``unaided`` part of the state record (:data:`fuser.model.state.UNAIDED`),
+changed in place; ``params`` is the ``accel`` group of :mod:`fuser.model.params`.
 """
 
 from __future__ import annotations
@@ -87,162 +91,184 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
-from core import quaternion as quat
-from fuser.config import AccelSettings
+from core.quaternion_kernels import from_array, rotation_rows, rotvec_between_world
 from fuser.model import vec3
-from fuser.model.state import GravityState, UnaidedState
 
 __all__ = ["absorbed", "cleared", "corrected", "excess_norm_sq_m2_s4", "followed", "learn_norm", "unaided_target", "unseen_variances_rad2"]
 
 
-def excess_norm_sq_m2_s4(params: AccelSettings, lowpassed_m_s2: np.ndarray | None) -> float:
-    """``|f_lp|^2 - g^2`` of the low-passed specific force, signed (0 with no low-pass yet)."""
-    if lowpassed_m_s2 is None:
+@njit(cache=True, nogil=True)
+def excess_norm_sq_m2_s4(params: np.record, has_lowpassed: bool, lowpassed_m_s2: tuple) -> float:
+    """``|f_lp|^2 - g^2`` of the low-passed specific force, signed (0 with no low-pass yet: ``has_lowpassed`` False)."""
+    if not has_lowpassed:
         return 0.0
-    x, y, z = vec3.floats(lowpassed_m_s2)
-    return (x * x + y * y + z * z) - params.gravity_m_s2**2
+    x, y, z = lowpassed_m_s2
+    g = params.gravity_m_s2
+    return (x * x + y * y + z * z) - g * g
 
 
-def learn_norm(params: AccelSettings, state: UnaidedState, gravity: GravityState, accel_body_m_s2: np.ndarray, interval_s: float,
-               frame_broken: bool) -> UnaidedState:
+@njit(cache=True, nogil=True)
+def learn_norm(params: np.record, unaided: np.record, gravity: np.record, accel_body_m_s2: tuple, interval_s: float,
+               frame_broken: bool) -> None:
     """The sensor's own norm, learnt: the tick's mean specific force (body frame), turned into the strapdown
     frame, into the long-run mean (a growing window up to ``accel.unaided_norm_window_s``, then a low-pass of
     that time constant), with or without GNSS. A gyro gap breaks the frame: the mean's direction in it is lost,
     its norm (the sensor's) is not, so the mean is kept along the last measured down (``gravity.down_body``)
     and learns again from the next tick."""
-    to_s = vec3.rotation_rows(gravity.q_strapdown)
-    if state.norm_mean_m_s2 is not None and frame_broken:
-        norm = vec3.norm(vec3.floats(state.norm_mean_m_s2))
-        dx, dy, dz = vec3.floats(gravity.down_body)
-        return UnaidedState(state.excess_m2_s4, np.array(vec3.mat_vec(to_s, (-norm * dx, -norm * dy, -norm * dz))), state.norm_mean_s,
-                            state.absorbed_rad)
-    f_s = vec3.mat_vec(to_s, vec3.floats(accel_body_m_s2))
-    if state.norm_mean_m_s2 is None:
-        return UnaidedState(state.excess_m2_s4, np.array(f_s), interval_s, state.absorbed_rad)
-    seconds = state.norm_mean_s + interval_s
+    to_s = rotation_rows(from_array(gravity.q_strapdown))
+    if unaided.has_norm_mean and frame_broken:
+        norm = vec3.norm(vec3.load(unaided.norm_mean_m_s2))
+        dx, dy, dz = vec3.load(gravity.down_body)
+        vec3.store(unaided.norm_mean_m_s2, vec3.mat_vec(to_s, (-norm * dx, -norm * dy, -norm * dz)))
+        return
+    f_s = vec3.mat_vec(to_s, accel_body_m_s2)
+    if not unaided.has_norm_mean:
+        unaided.has_norm_mean = True
+        vec3.store(unaided.norm_mean_m_s2, f_s)
+        unaided.norm_mean_s = interval_s
+        return
+    seconds = unaided.norm_mean_s + interval_s
     alpha = interval_s / min(seconds, params.unaided_norm_window_s)
-    return UnaidedState(state.excess_m2_s4, np.array(vec3.toward(vec3.floats(state.norm_mean_m_s2), f_s, alpha)), seconds, state.absorbed_rad)
+    vec3.store(unaided.norm_mean_m_s2, vec3.toward(vec3.load(unaided.norm_mean_m_s2), f_s, alpha))
+    unaided.norm_mean_s = seconds
 
 
-def _baseline_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
+@njit(cache=True, nogil=True)
+def _baseline_m2_s4(params: np.record, unaided: np.record) -> float:
     """``|f|^2 - g^2`` of gravity as the sensor reads it (0 until learnt)."""
-    return excess_norm_sq_m2_s4(params, state.norm_mean_m_s2)
+    return excess_norm_sq_m2_s4(params, unaided.has_norm_mean, vec3.load(unaided.norm_mean_m_s2))
 
 
-def _scale_error_m2_s4(params: AccelSettings, fraction: float) -> float:
+@njit(cache=True, nogil=True)
+def _scale_error_m2_s4(params: np.record, fraction: float) -> float:
     """The excess ``|f|^2 - g^2`` a norm ``fraction`` too high makes: ``((1 + fraction)^2 - 1) g^2``."""
-    return ((1.0 + fraction) ** 2 - 1.0) * params.gravity_m_s2**2
+    g = params.gravity_m_s2
+    return ((1.0 + fraction) * (1.0 + fraction) - 1.0) * (g * g)
 
 
-def _allowed_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
+@njit(cache=True, nogil=True)
+def _allowed_m2_s4(params: np.record, unaided: np.record) -> float:
     """The excess over the baseline the sensor itself may make: ``((1 + t)^2 - 1) g^2`` for its scale error ``t``
     (``accel.unaided_norm_tolerance_fraction`` until its norm is learnt), and, while the window is short, what a
     vertical speed change ``dv`` over it (``accel.unaided_speed_change_m_s``) puts into the learnt norm, ``2 g dv / T``."""
     g = params.gravity_m_s2
     initial = _scale_error_m2_s4(params, params.unaided_norm_tolerance_fraction)
-    if state.norm_mean_m_s2 is None:
+    if not unaided.has_norm_mean:
         return initial
-    window_s = min(state.norm_mean_s, params.unaided_norm_window_s)
+    window_s = min(unaided.norm_mean_s, params.unaided_norm_window_s)
     learnt = _scale_error_m2_s4(params, params.unaided_learnt_tolerance_fraction) + 2.0 * g * params.unaided_speed_change_m_s / window_s
     return min(initial, learnt)
 
 
-def _hidden_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
+@njit(cache=True, nogil=True)
+def _hidden_m2_s4(params: np.record, unaided: np.record) -> float:
     """The largest excess read as no acceleration: the learnt norm's plus its tolerance, never more than the
     unlearnt tolerance's alone. Learning the norm may only reveal: a window flown in a turn throughout (a start
     mid-turn, a long loiter) learns the turn's norm, not the sensor's, and must not hide the turn."""
-    return min(_scale_error_m2_s4(params, params.unaided_norm_tolerance_fraction), _baseline_m2_s4(params, state) + _allowed_m2_s4(params, state))
+    return min(_scale_error_m2_s4(params, params.unaided_norm_tolerance_fraction), _baseline_m2_s4(params, unaided) + _allowed_m2_s4(params, unaided))
 
 
-def _nothing_unseen_m2_s4(params: AccelSettings, state: UnaidedState) -> float:
+@njit(cache=True, nogil=True)
+def _nothing_unseen_m2_s4(params: np.record, unaided: np.record) -> float:
     """The excess of no unseen acceleration: the learnt norm's, or the largest hidden one if that is smaller."""
-    return min(_baseline_m2_s4(params, state), _hidden_m2_s4(params, state))
+    return min(_baseline_m2_s4(params, unaided), _hidden_m2_s4(params, unaided))
 
 
-def unaided_target(params: AccelSettings, gravity: GravityState, interval_s: float, tau_s: float) -> tuple[float, float]:
-    """What the excess follows this tick without GNSS aiding, and with which time constant: the low-passed
-    reading's with the tilt time constant ``tau_s`` while the plain gravity update uses the low-pass; while it uses
-    raw readings (its fast start, again after a gyro gap or saturation broke the strapdown frame) their mean's at
-    once: the estimate follows them within ticks, in a turn straight to the bank's tilt (:mod:`fuser.model.gravity`)."""
-    if gravity.accel_lp_m_s2 is None:
-        return excess_norm_sq_m2_s4(params, gravity.raw_mean_m_s2), interval_s
-    return excess_norm_sq_m2_s4(params, gravity.accel_lp_m_s2), tau_s
+@njit(cache=True, nogil=True)
+def unaided_target(params: np.record, gravity: np.record, interval_s: float, tau_s: float) -> tuple:
+    """(target, time constant): what the excess follows this tick without GNSS aiding, and with which time constant:
+    the low-passed reading's with the tilt time constant ``tau_s`` while the plain gravity update uses the low-pass;
+    while it uses raw readings (its fast start, again after a gyro gap or saturation broke the strapdown frame) their
+    mean's at once: the estimate follows them within ticks, in a turn straight to the bank's tilt (:mod:`fuser.model.gravity`)."""
+    if not gravity.has_accel_lp:
+        return excess_norm_sq_m2_s4(params, gravity.has_raw_mean, vec3.load(gravity.raw_mean_m_s2)), interval_s
+    return excess_norm_sq_m2_s4(params, gravity.has_accel_lp, vec3.load(gravity.accel_lp_m_s2)), tau_s  # has_accel_lp: True here
 
 
-def followed(params: AccelSettings, state: UnaidedState, target_m2_s4: float, interval_s: float, tau_s: float) -> UnaidedState:
+@njit(cache=True, nogil=True)
+def followed(params: np.record, unaided: np.record, target_m2_s4: float, interval_s: float, tau_s: float) -> None:
     """The followed excess after ``interval_s`` more of following ``target_m2_s4`` with the time constant
     ``tau_s`` (a first-order lag, as the estimate follows its low-pass), never below the baseline minus the
     tolerance: a norm persistently low (the strapdown frame turning with an unlearnt bias) must not hide a turn."""
-    lagged = state.excess_m2_s4 + min(1.0, interval_s / tau_s) * (target_m2_s4 - state.excess_m2_s4)
-    floor = _baseline_m2_s4(params, state) - _allowed_m2_s4(params, state)
-    return UnaidedState(max(lagged, floor), state.norm_mean_m_s2, state.norm_mean_s, state.absorbed_rad)
+    lagged = unaided.excess_m2_s4 + min(1.0, interval_s / tau_s) * (target_m2_s4 - unaided.excess_m2_s4)
+    floor = _baseline_m2_s4(params, unaided) - _allowed_m2_s4(params, unaided)
+    unaided.excess_m2_s4 = max(lagged, floor)
 
 
-def cleared(params: AccelSettings, state: UnaidedState) -> UnaidedState:
+@njit(cache=True, nogil=True)
+def cleared(params: np.record, unaided: np.record) -> None:
     """No unseen acceleration, nothing absorbed: the autopilot's attitude was fused, whose down is its own estimator's."""
-    return UnaidedState(_nothing_unseen_m2_s4(params, state), state.norm_mean_m_s2, state.norm_mean_s)
+    unaided.excess_m2_s4 = _nothing_unseen_m2_s4(params, unaided)
+    unaided.absorbed_rad[0], unaided.absorbed_rad[1] = 0.0, 0.0
 
 
-def absorbed(params: AccelSettings, state: UnaidedState, interval_s: float, tau_s: float,
-             correction: tuple[np.ndarray, np.ndarray] | None) -> UnaidedState:
+@njit(cache=True, nogil=True)
+def absorbed(params: np.record, unaided: np.record, interval_s: float, tau_s: float, has_correction: bool, predicted_q: tuple,
+             posterior_q: tuple) -> None:
     """The tilt the plain gravity update's corrections have moved the estimate by, ``interval_s`` later: the
-    world-frame rotation of this tick's correction, ``correction`` = (predicted mode, posterior mode; None: no plain
-    correction this tick), north and east added to the sum, which leaks with ``accel.unaided_memory_time_constants``
-    tilt time constants ``tau_s`` (module docstring)."""
+    world-frame rotation of this tick's correction (``has_correction``: the plain update corrected the predicted mode
+    ``predicted_q`` into the posterior's ``posterior_q``; False: no plain correction this tick), north and east added
+    to the sum, which leaks with ``accel.unaided_memory_time_constants`` tilt time constants ``tau_s`` (module
+    docstring)."""
     keep = 1.0 - min(1.0, interval_s / (params.unaided_memory_time_constants * tau_s))
-    north, east = state.absorbed_rad
-    north, east = keep * north, keep * east
-    if correction is not None:
-        predicted_q, posterior_q = correction
-        turn = quat.rotvec_between(predicted_q, posterior_q, "world").tolist()
+    north, east = keep * unaided.absorbed_rad[0], keep * unaided.absorbed_rad[1]
+    if has_correction:
+        turn = rotvec_between_world(predicted_q, posterior_q)
         north, east = north + turn[0], east + turn[1]
-    return UnaidedState(state.excess_m2_s4, state.norm_mean_m_s2, state.norm_mean_s, (north, east))
+    unaided.absorbed_rad[0], unaided.absorbed_rad[1] = north, east
 
 
-def corrected(params: AccelSettings, state: UnaidedState, prior_tilt_deg: float, sigma_deg: float, bound_rad: float) -> UnaidedState:
-    """The excess after a GNSS-aided gravity reading is fused: the tilt it stood for shrinks as the estimate is
-    corrected, by the reading's gain ``k = p / (p + sigma^2)`` per axis (``p`` the prior's per-axis tilt variance,
-    half ``prior_tilt_deg`` squared; the Bingham product moves the mode by that share of the innovation, QBF paper,
-    sec. 5), not faster: after a turn flown unaided the aided readings need seconds to pull the tilt back, and the
-    estimate is as far off meanwhile as it was. Nor is it larger than the reading allows (``bound_rad``: its
-    innovation plus twice its noise), which the excess cannot tell from a vertical acceleration (a take-off). The
-    tilt absorbed before the aiding (:func:`absorbed`) shrinks alike."""
-    prior = 0.5 * math.radians(prior_tilt_deg) ** 2
-    keep = 1.0 - (prior / (prior + math.radians(sigma_deg) ** 2) if prior > 0.0 else 0.0)
-    north, east = state.absorbed_rad
+@njit(cache=True, nogil=True)
+def corrected(params: np.record, unaided: np.record, prior_tilt_deg: float, sigma_rad: float, bound_rad: float) -> None:
+    """The excess after a GNSS-aided gravity reading of sigma ``sigma_rad`` is fused: the tilt it stood for shrinks
+    as the estimate is corrected, by the reading's gain ``k = p / (p + sigma^2)`` per axis (``p`` the prior's per-axis
+    tilt variance, half ``prior_tilt_deg`` squared; the Bingham product moves the mode by that share of the
+    innovation, QBF paper, sec. 5), not faster: after a turn flown unaided the aided readings need seconds to pull the
+    tilt back, and the estimate is as far off meanwhile as it was. Nor is it larger than the reading allows
+    (``bound_rad``: its innovation plus twice its noise), which the excess cannot tell from a vertical acceleration (a
+    take-off). The tilt absorbed before the aiding (:func:`absorbed`) shrinks alike."""
+    prior_tilt_rad = math.radians(prior_tilt_deg)
+    prior = 0.5 * (prior_tilt_rad * prior_tilt_rad)
+    keep = 1.0 - (prior / (prior + sigma_rad * sigma_rad) if prior > 0.0 else 0.0)
+    north, east = unaided.absorbed_rad[0], unaided.absorbed_rad[1]
     absorbed_rad = math.hypot(north, east)
     shrink = min(keep, bound_rad / absorbed_rad) if absorbed_rad > 0.0 else 0.0
-    remaining = (shrink * north, shrink * east)
-    tilt_rad = _unseen_tilt_rad(params, state)
+    tilt_rad = _unseen_tilt_rad(params, unaided)
     if tilt_rad == 0.0:  # the aided reading takes out what the excess within the tolerance may have been
-        return UnaidedState(min(state.excess_m2_s4, _nothing_unseen_m2_s4(params, state)), state.norm_mean_m_s2, state.norm_mean_s, remaining)
-    tilt_rad = min(keep * tilt_rad, bound_rad)
-    return UnaidedState(_hidden_m2_s4(params, state) + (params.gravity_m_s2 * math.tan(tilt_rad)) ** 2, state.norm_mean_m_s2, state.norm_mean_s,
-                        remaining)
+        unaided.excess_m2_s4 = min(unaided.excess_m2_s4, _nothing_unseen_m2_s4(params, unaided))
+    else:
+        tilt_rad = min(keep * tilt_rad, bound_rad)
+        horizontal_m_s2 = params.gravity_m_s2 * math.tan(tilt_rad)
+        unaided.excess_m2_s4 = _hidden_m2_s4(params, unaided) + horizontal_m_s2 * horizontal_m_s2
+    unaided.absorbed_rad[0], unaided.absorbed_rad[1] = shrink * north, shrink * east
 
 
-def _unseen_tilt_rad(params: AccelSettings, state: UnaidedState) -> float:
+@njit(cache=True, nogil=True)
+def _unseen_tilt_rad(params: np.record, unaided: np.record) -> float:
     """The tilt the excess beyond the hidden one (:func:`_hidden_m2_s4`), read as a horizontal acceleration, makes:
     ``atan(|a_h| / g)``."""
-    horizontal_sq_m2_s4 = state.excess_m2_s4 - _hidden_m2_s4(params, state)
+    horizontal_sq_m2_s4 = unaided.excess_m2_s4 - _hidden_m2_s4(params, unaided)
     return math.atan2(math.sqrt(horizontal_sq_m2_s4), params.gravity_m_s2) if horizontal_sq_m2_s4 > 0.0 else 0.0
 
 
-def unseen_variances_rad2(params: AccelSettings, state: UnaidedState,
-                          field_ned_gauss: tuple[float, float, float] | None) -> tuple[float, float]:
+@njit(cache=True, nogil=True)
+def unseen_variances_rad2(params: np.record, unaided: np.record, heading_measured: bool, field_ned_gauss: tuple) -> tuple:
     """(tilt, heading) variances, rad^2 per axis, of the down the followed excess, read as a horizontal
     acceleration beyond the tolerance, biases, or of the tilt the corrections absorbed (:func:`absorbed`), whichever
     is larger (two accounts of one error: the sustained acceleration and the transient); the heading's through the
-    field's inclination, ``tan(I)^2 / 2`` times the tilt's (``field_ned_gauss`` None: no magnetometer heading, none).
-    The absorbed tilt's direction is known, but the per-axis variance is counted on both horizontal axes."""
-    north, east = state.absorbed_rad
-    tilt_rad2 = max(_unseen_tilt_rad(params, state) ** 2, north * north + east * east)
+    field's inclination (the reference field ``field_ned_gauss``), ``tan(I)^2 / 2`` times the tilt's
+    (``heading_measured`` False: no magnetometer heading, none). The absorbed tilt's direction is known, but the
+    per-axis variance is counted on both horizontal axes."""
+    north, east = unaided.absorbed_rad[0], unaided.absorbed_rad[1]
+    unseen_rad = _unseen_tilt_rad(params, unaided)
+    tilt_rad2 = max(unseen_rad * unseen_rad, north * north + east * east)
     if tilt_rad2 == 0.0:
         return 0.0, 0.0
-    if field_ned_gauss is None:
+    if not heading_measured:
         return tilt_rad2, 0.0
     north, east, down = field_ned_gauss
     field_horizontal_sq = north * north + east * east
     tan_sq = down * down / field_horizontal_sq if field_horizontal_sq > 0.0 else math.inf
-    return tilt_rad2, min(0.5 * tilt_rad2 * tan_sq, math.pi**2)
+    return tilt_rad2, min(0.5 * tilt_rad2 * tan_sq, math.pi * math.pi)

@@ -1,79 +1,86 @@
-"""Plain-float 3-vector arithmetic for the per-tick updates.
+"""Compiled 3-vector arithmetic for the tick: vectors as tuples of three floats, matrices as three rows.
 
-An update handles a handful of 3-vectors and 3x3 rotations per tick; numpy
-costs about a microsecond per call on them (an array made, a dispatch), many
-times the arithmetic on three numbers, and that overhead was most of the
-gravity, velocity and heading updates' cost. Here a vector is a tuple of
-three floats and a matrix a sequence of three rows (:func:`rotation_rows`);
-the updates convert at their edges (:func:`floats` in, ``np.array`` for the
-state they keep out). Element-wise operations round exactly as numpy's do; a
-dot product or a matrix-vector product may differ from numpy's (BLAS, fused
-multiply-adds) in the last bit.
+An update handles a handful of 3-vectors and 3x3 rotations per tick; as
+tuples they stay in registers inside the compiled tick (:mod:`fuser.model.fusion`),
+where an array per value would be a heap allocation. :func:`load` and
+:func:`store` move a vector between a tuple and a state record's field.
+Rotation matrices come from :func:`core.quaternion_kernels.rotation_rows`.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Sequence
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numba import njit
 
-from drivers.samples import Vec3
+__all__ = ["ZERO", "angle_rad", "dot", "load", "mat_vec", "norm", "scaled", "store", "sub", "toward", "vec_mat", "wrapped_pi"]
 
-__all__ = ["Rows", "angle_rad", "dot", "floats", "mat_vec", "norm", "rotation_rows", "sub", "toward", "vec_mat"]
-
-Rows = Sequence[Sequence[float]]
-"""A 3x3 matrix as three rows of three floats."""
+ZERO = (0.0, 0.0, 0.0)
 
 
-def floats(v: ArrayLike) -> Vec3:
-    """A 3-vector (array, tuple, list) as a tuple of three floats."""
-    x, y, z = np.asarray(v, dtype=float).tolist()
-    return x, y, z
+@njit(cache=True, nogil=True)
+def load(a: np.ndarray) -> tuple:
+    """The first three entries of ``a`` as a tuple."""
+    return a[0], a[1], a[2]
 
 
-def rotation_rows(q: ArrayLike) -> Rows:
-    """The rotation matrix of the unit quaternion ``q`` (w, x, y, z) as rows of floats: the entries of
-    :func:`core.quaternion.to_matrix`, written out alike (so rounded alike), without its arrays."""
-    w, x, y, z = np.asarray(q, dtype=float).tolist()
-    return ((w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)),
-            (2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)),
-            (2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z))
+@njit(cache=True, nogil=True)
+def store(out: np.ndarray, v: tuple) -> None:
+    """Write the tuple ``v`` into the first three entries of ``out``."""
+    out[0], out[1], out[2] = v[0], v[1], v[2]
 
 
-def dot(a: Vec3, b: Vec3) -> float:
+@njit(cache=True, nogil=True)
+def dot(a: tuple, b: tuple) -> float:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-def norm(a: Vec3) -> float:
+@njit(cache=True, nogil=True)
+def norm(a: tuple) -> float:
     return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
 
 
-def mat_vec(m: Rows, v: Vec3) -> Vec3:
-    """``m @ v``."""
+@njit(cache=True, nogil=True)
+def sub(a: tuple, b: tuple) -> tuple:
+    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
+
+
+@njit(cache=True, nogil=True)
+def scaled(a: tuple, k: float) -> tuple:
+    return a[0] * k, a[1] * k, a[2] * k
+
+
+@njit(cache=True, nogil=True)
+def mat_vec(m: tuple, v: tuple) -> tuple:
+    """``m @ v`` for ``m`` three rows."""
     x, y, z = v
     r0, r1, r2 = m
     return r0[0] * x + r0[1] * y + r0[2] * z, r1[0] * x + r1[1] * y + r1[2] * z, r2[0] * x + r2[1] * y + r2[2] * z
 
 
-def vec_mat(v: Vec3, m: Rows) -> Vec3:
+@njit(cache=True, nogil=True)
+def vec_mat(v: tuple, m: tuple) -> tuple:
     """``v @ m``, i.e. ``m^T v``."""
     x, y, z = v
     r0, r1, r2 = m
     return x * r0[0] + y * r1[0] + z * r2[0], x * r0[1] + y * r1[1] + z * r2[1], x * r0[2] + y * r1[2] + z * r2[2]
 
 
-def sub(a: Vec3, b: Vec3) -> Vec3:
-    """``a - b``."""
-    return a[0] - b[0], a[1] - b[1], a[2] - b[2]
-
-
-def toward(a: Vec3, b: Vec3, k: float) -> Vec3:
+@njit(cache=True, nogil=True)
+def toward(a: tuple, b: tuple, k: float) -> tuple:
     """``a + k (b - a)``: one step of a first-order low-pass from ``a`` towards ``b``."""
     return a[0] + k * (b[0] - a[0]), a[1] + k * (b[1] - a[1]), a[2] + k * (b[2] - a[2])
 
 
+@njit(cache=True, nogil=True)
 def angle_rad(cos: float) -> float:
     """``acos`` of a cosine, clipped to [-1, 1] (a product of unit vectors may round past them)."""
     return math.acos(max(-1.0, min(1.0, cos)))
+
+
+@njit(cache=True, nogil=True)
+def wrapped_pi(angle_rad: float) -> float:
+    """``angle_rad`` wrapped into [-pi, pi]: ``math.remainder(angle, 2 pi)``, which numba does not compile (nor
+    ``math.fmod``); the nearest multiple of ``2 pi`` taken off, halves to even as ``math.remainder`` does."""
+    return angle_rad - 2.0 * math.pi * round(angle_rad / (2.0 * math.pi))

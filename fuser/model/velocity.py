@@ -41,7 +41,7 @@ the fuser), so over the low-pass window ``R_NS lp_S(f) = lp(R_NS f_S) =
 lp(a) - g e_z``. Nothing is rotated by the *estimate*: the measurement is
 the exact vector observation "the body vector ``b = R_SB^T lp_S(-f)`` is the
 world vector ``w = lp(g e_z - a)``" (Davenport's K,
-:func:`core.observations.vector_exponent`), which in a turn (``w`` not
+:func:`core.observations.vector_exponent`, compiled as ``_davenport``), which in a turn (``w`` not
 vertical) also informs the heading, as it physically does; rotating ``a``
 into S by the estimate instead would turn every heading error ``psi`` into
 a tilt error ``psi |a_h| / g``.
@@ -89,71 +89,59 @@ before the accelerometer's history (``gap``: nothing to difference it
 with). A stream that stops: once the last pair is ``max_age_s`` old the
 aiding ends (``gnss_lost``), its low-pass is dropped and the plain gravity
 update takes over from the estimate, until pairs come again.
+
+**The state** is the ``velocity`` part of the model's record
+(:data:`fuser.model.state.VELOCITY`), changed in place here. Each stream,
+(source, filtered), has a slot (``GNSS_INPUT.slot``, given by the model's
+Python side, which also ranks the slots by (filtered, source) in
+``stream_rank``: the order of the stream selection); a slot holds the
+stream's last new fix once it has had one (``stream_seen``). The
+accelerometer's history is a ring of knots beside the record
+(``knots_ns``, ``knots``: the integral and the tick's force), from
+``knots_first``, ``knots_count`` long; its capacity
+(:func:`fuser.model.state.knot_capacity`) holds ``max_age_s`` plus the
+latency at the loop's rate, and should it ever fill the oldest knot goes.
 """
 
 from __future__ import annotations
 
 import math
-from bisect import bisect_left
-from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 from numba import njit
 
-from core.bingham import Bingham
 from core.bingham_kernels import down_alignment_sq
-from core.normalization import Method
-from core.observations import vector_exponent
-from drivers.samples import GnssSample, Vec3
-from fuser.config import AccelSettings, GnssSettings, UpdateSettings
+from core.observations import _davenport
+from core.quaternion_kernels import from_array, rotation_rows
 from fuser.model import vec3
-from fuser.model.diagnostics import UpdateDiagnostic
+from fuser.model.diagnostics import (AIDED_3D, AIDED_HORIZONTAL, FUSED, GAP, GATED, GRAVITY, INNOVATION, JUMP, NO_FIX, NO_REASON, NORM,
+                                     NOT_AIDED, STALE, UNCONVERGED, UNSELECTED, VELOCITY, Diagnostic, emit, none)
 from fuser.model.gate import innovation_gate
-from fuser.model.gravity import GnssWorld, GravityReading
-from fuser.model.state import GnssStream, GravityState, VelocityState
-from fuser.model.tick import TickContext
+from fuser.model.tick import GravityReading, TickContext, VelocityTrack
 
 __all__ = ["VelocityTrack", "raw_world", "tilt_doubt_deg", "track_velocity", "update_gravity_aided"]
 
 FIX_2D = 2
 """MAVLink GPS_FIX_TYPE of the first fix that carries a velocity."""
 _ZERO = (0.0, 0.0, 0.0)
-_AIDING_3D = (("aiding", "gnss"),)
-_AIDING_HORIZONTAL = (("aiding", "gnss_horizontal"),)
 
 
-@dataclass(frozen=True, slots=True)
-class VelocityTrack:
-    """One tick of the GNSS side: the state after the tick's fixes, what became of each, and whether it aids."""
-
-    state: VelocityState
-    active: bool
-    """Aiding is on: the gravity update is the aided one (:func:`update_gravity_aided`), not the plain one."""
-    fused: bool
-    """A pair entered the low-pass in this tick: the aided update has a new reading."""
-    interval_s: float
-    """Seconds since the previous tick that fused a pair (the aided readings' spacing)."""
-    moving: bool
-    """A fix within ``max_age_s`` is faster than ``gnss.moving_speed_m_s``: the vehicle is not at rest."""
-    diagnostics: tuple[UpdateDiagnostic, ...]
-    events: tuple[str, ...]
-
-
-def tilt_doubt_deg(state: Bingham, method: Method) -> float:
-    """RMS tilt error of a Bingham (its uncertainty about the horizontal axes only, degrees).
+@njit(cache=True, nogil=True)
+def tilt_doubt_deg(M: np.ndarray, moments: np.ndarray) -> float:
+    """RMS tilt error of a Bingham (its uncertainty about the horizontal axes only, degrees), from its ``M`` and
+    its moments ``E[(M^T x)_i^2]``.
 
     Along principal direction ``m_i`` the body-frame rotation error has variance ``4 E[(m_i . x)^2]`` (the vector
     part of a small rotation is half its angle) about the body axis ``vec(mode^* m_i)``; its tilt share is
     ``1 - cos^2`` of that axis with world down seen in the body, ``cos = m_i . (k mode)`` (as in
     :func:`fuser.model_error.widened_concentrations`). A heading still unknown (6-D, a cold start) does not count.
     """
-    return math.degrees(math.sqrt(max(_tilt_variance(state.M, state.moments(method)), 0.0)))
+    return math.degrees(math.sqrt(max(_tilt_variance(M, moments), 0.0)))
 
 
 @njit(cache=True, nogil=True)
 def _tilt_variance(M: np.ndarray, moments: np.ndarray) -> float:
-    """``sum_i 4 E[(m_i . x)^2] (1 - cos_i^2)`` over the three dispersion directions (:func:`tilt_doubt_deg`), compiled."""
+    """``sum_i 4 E[(m_i . x)^2] (1 - cos_i^2)`` over the three dispersion directions (:func:`tilt_doubt_deg`)."""
     along_down = down_alignment_sq(M)
     variance = 0.0
     for i in range(3):
@@ -161,240 +149,329 @@ def _tilt_variance(M: np.ndarray, moments: np.ndarray) -> float:
     return variance
 
 
-def _force_at(knots: Sequence[tuple[int, np.ndarray, np.ndarray]], t_ns: int) -> Vec3 | None:
-    """The integrated specific force at ``t_ns`` (linear between knots), None outside the history."""
-    if not knots or t_ns < knots[0][0] or t_ns > knots[-1][0]:
-        return None
-    i = bisect_left(knots, t_ns, key=_knot_ns)
-    t1, f1, _ = knots[i]
-    if t1 == t_ns or i == 0:
-        return vec3.floats(f1)
-    t0, f0, _ = knots[i - 1]
-    return vec3.toward(vec3.floats(f0), vec3.floats(f1), (t_ns - t0) / (t1 - t0))
+@njit(cache=True, nogil=True)
+def _force_at(state: np.record, knots_ns: np.ndarray, knots: np.ndarray, t_ns: int) -> tuple:
+    """(inside, integral): the integrated specific force at ``t_ns`` (linear between knots); not inside the
+    history: False (and zeros). The ring's knots in time order, bisected (``bisect_left``)."""
+    count = state.knots_count
+    if count == 0:
+        return False, _ZERO
+    capacity, first = knots_ns.shape[0], state.knots_first
+    if t_ns < knots_ns[first] or t_ns > knots_ns[(first + count - 1) % capacity]:
+        return False, _ZERO
+    lo, hi = 0, count
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if knots_ns[(first + mid) % capacity] < t_ns:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = (first + lo) % capacity
+    t1, f1 = knots_ns[j], (knots[j, 0], knots[j, 1], knots[j, 2])
+    if t1 == t_ns or lo == 0:
+        return True, f1
+    k = (first + lo - 1) % capacity
+    t0, f0 = knots_ns[k], (knots[k, 0], knots[k, 1], knots[k, 2])
+    return True, vec3.toward(f0, f1, (t_ns - t0) / (t1 - t0))
 
 
-def _knot_ns(knot: tuple[int, np.ndarray, np.ndarray]) -> int:
-    return knot[0]
-
-
-def _knots(params: GnssSettings, state: VelocityState, force_s_m_s2: Vec3 | None, tick_ns: int, dt_ns: int,
-           broken: bool) -> tuple[tuple[int, np.ndarray, np.ndarray], ...]:
-    """The accelerometer's history after this tick: its mean specific force in S (held without a sample),
-    integrated; dropped when the strapdown frame broke (a gyro gap: the frame before is not this one)."""
-    knots = () if broken else state.force_knots
-    if not knots:
-        zero = np.zeros(3)
-        force = zero if force_s_m_s2 is None else np.array(force_s_m_s2)
-        return ((tick_ns - dt_ns, zero, force), (tick_ns, force * (dt_ns * 1e-9), force))
-    last_ns, integral, held = knots[-1]
-    force = held if force_s_m_s2 is None else np.array(force_s_m_s2)
+@njit(cache=True, nogil=True)
+def _knots(params: np.record, state: np.record, knots_ns: np.ndarray, knots: np.ndarray, has_force: bool, force_s_m_s2: tuple,
+           tick_ns: int, dt_ns: int, broken: bool) -> None:
+    """The accelerometer's history after this tick, in place: its mean specific force in S (held without a
+    sample), integrated; dropped when the strapdown frame broke (a gyro gap: the frame before is not this one)."""
+    capacity = knots_ns.shape[0]
+    count = 0 if broken else state.knots_count
+    if count == 0:
+        fx, fy, fz = force_s_m_s2 if has_force else _ZERO
+        step_s = dt_ns * 1e-9
+        knots_ns[0], knots_ns[1] = tick_ns - dt_ns, tick_ns
+        knots[0, 0], knots[0, 1], knots[0, 2], knots[0, 3], knots[0, 4], knots[0, 5] = 0.0, 0.0, 0.0, fx, fy, fz
+        knots[1, 0], knots[1, 1], knots[1, 2], knots[1, 3], knots[1, 4], knots[1, 5] = fx * step_s, fy * step_s, fz * step_s, fx, fy, fz
+        state.knots_first, state.knots_count = 0, 2
+        return
+    first = state.knots_first
+    last = (first + count - 1) % capacity
+    last_ns = knots_ns[last]
+    integral = (knots[last, 0], knots[last, 1], knots[last, 2])
+    force = force_s_m_s2 if has_force else (knots[last, 3], knots[last, 4], knots[last, 5])
     horizon_ns = tick_ns - round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9) - 2 * dt_ns
     # the first knot kept is the last one before the horizon (the horizon moves a tick per tick: a step or two)
-    first = 0
-    while first + 1 < len(knots) and knots[first + 1][0] < horizon_ns:
-        first += 1
+    dropped = 0
+    while dropped + 1 < count and knots_ns[(first + dropped + 1) % capacity] < horizon_ns:
+        dropped += 1
+    first, count = (first + dropped) % capacity, count - dropped
+    if count == capacity:  # full (knot_capacity is meant to prevent it): the oldest goes
+        first, count = (first + 1) % capacity, count - 1
     step_s = (tick_ns - last_ns) * 1e-9
-    fx, fy, fz = force.tolist()
-    ix, iy, iz = integral.tolist()
-    return knots[first:] + ((tick_ns, np.array((ix + fx * step_s, iy + fy * step_s, iz + fz * step_s)), force),)
+    fx, fy, fz = force
+    ix, iy, iz = integral
+    k = (first + count) % capacity
+    knots_ns[k] = tick_ns
+    knots[k, 0], knots[k, 1], knots[k, 2] = ix + fx * step_s, iy + fy * step_s, iz + fz * step_s
+    knots[k, 3], knots[k, 4], knots[k, 5] = fx, fy, fz
+    state.knots_first, state.knots_count = first, count + 1
 
 
+@njit(cache=True, nogil=True)
 def _noise_after(variance: float, covariance: float, alpha: float, span_s: float, noise_m_s: float,
-                 previous_noise_m_s: float) -> tuple[float, float]:
+                 previous_noise_m_s: float) -> tuple:
     """The velocity noise in a low-pass of differenced fixes after one more: ``y = (1 - a) y + (a / T)(n1 - n0)``,
     ``n0`` shared with the previous difference (module docstring, "Sigma"); (variance, covariance with ``n1``)."""
     gain = alpha / span_s
-    variance = (1.0 - alpha) ** 2 * variance + gain**2 * (noise_m_s**2 + previous_noise_m_s**2) - 2.0 * (1.0 - alpha) * gain * covariance
-    return variance, gain * noise_m_s**2
+    keep = 1.0 - alpha
+    variance = (keep * keep * variance + gain * gain * (noise_m_s * noise_m_s + previous_noise_m_s * previous_noise_m_s)
+                - 2.0 * keep * gain * covariance)
+    return variance, gain * (noise_m_s * noise_m_s)
 
 
-def _selected(streams: Sequence[GnssStream], now_measured_ns: int, max_age_ns: int) -> tuple | None:
-    """The stream whose pairs aid: among those with a fix within ``max_age``, one with vertical velocity first,
-    then a receiver's fix before an autopilot's solution, then the lowest source (a total, stable order)."""
-    fresh = [s for s in streams if now_measured_ns - s.measured_ns <= max_age_ns]
-    if not fresh:
-        return None
-    return min(fresh, key=lambda s: (not s.vertical, s.key[1], s.key[0])).key
+@njit(cache=True, nogil=True)
+def _selected(state: np.record, now_measured_ns: int, max_age_ns: int) -> int:
+    """The slot of the stream whose pairs aid: among those with a fix within ``max_age``, one with vertical velocity
+    first, then a receiver's fix before an autopilot's solution, then the lowest source (``stream_rank``: a
+    total, stable order); -1: none."""
+    best, best_flat, best_rank = -1, True, 0
+    for k in range(state.stream_seen.shape[0]):
+        if not state.stream_seen[k] or now_measured_ns - state.stream_measured_ns[k] > max_age_ns:
+            continue
+        flat, rank = not bool(state.stream_vertical[k]), state.stream_rank[k]
+        if best < 0 or (flat < best_flat) or (flat == best_flat and rank < best_rank):
+            best, best_flat, best_rank = k, flat, rank
+    return best
 
 
-def track_velocity(params: GnssSettings, gravity_params: AccelSettings, updates: UpdateSettings, state: VelocityState,
-                   fixes: Sequence[tuple[GnssSample, int]], gravity: GravityState, accel_body_m_s2: np.ndarray | None, tick_ns: int,
-                   dt_ns: int, predicted_q: np.ndarray, prior_doubt_deg: float, prior_tilt_doubt_deg: float, tau_s: float,
-                   frame_broken: bool) -> VelocityTrack:
-    """The tick's GNSS fixes (each with its placed time) differenced into pairs against the accelerometer's
-    history and low-passed (module docstring); ``accel_body_m_s2`` is the tick's mean specific force in the
-    state's body frame (None without an IMU sample), ``gravity`` the strapdown frame after this tick's rotation,
-    ``predicted_q`` the predicted attitude's mode, ``prior_doubt_deg`` and ``prior_tilt_doubt_deg`` its doubts
-    (:class:`~fuser.model.tick.TickContext`). The aiding starts once a tilt has been measured and the predicted tilt
+@njit(cache=True, nogil=True)
+def track_velocity(params: np.record, gravity_params: np.record, updates: np.record, state: np.record, knots_ns: np.ndarray,
+                   knots: np.ndarray, fixes: np.ndarray, gravity: np.record, has_accel: bool, accel_body_m_s2: tuple, tick_ns: int,
+                   dt_ns: int, predicted_q: tuple, prior_doubt_deg: float, prior_tilt_doubt_deg: float, tau_s: float,
+                   frame_broken: bool, diagnostics: np.ndarray, n_diag: int) -> tuple:
+    """The tick's GNSS fixes (:data:`~fuser.model.tick.GNSS_INPUT`, each with its placed time and stream slot)
+    differenced into pairs against the accelerometer's history and low-passed (module docstring), in place on
+    ``state`` (the ``velocity`` record) and the knots' ring ``knots_ns``, ``knots``; ``params`` the ``gnss``
+    group, ``gravity_params`` the ``accel`` group. ``accel_body_m_s2`` is the tick's mean specific force in the
+    state's body frame (``has_accel`` False without an IMU sample), ``gravity`` the strapdown frame after this
+    tick's rotation, ``predicted_q`` the predicted attitude's mode, ``prior_doubt_deg`` and
+    ``prior_tilt_doubt_deg`` its doubts (:class:`~fuser.model.tick.TickContext`). Each fix's diagnostic is written
+    into ``diagnostics`` from ``n_diag`` on. The aiding starts once a tilt has been measured and the predicted tilt
     is known within ``updates.converged_deg`` (before that the plain update's fast start runs), whatever the
-    heading's uncertainty (6-D fusion too)."""
-    if not params.enabled or not (fixes or state.streams):
-        return VelocityTrack(state, False, False, 0.0, False, (), ())
+    heading's uncertainty (6-D fusion too). Returns (:class:`~fuser.model.tick.VelocityTrack`, the next free
+    diagnostic index)."""
+    n_fixes = fixes.shape[0]
+    any_stream = False
+    for k in range(state.stream_seen.shape[0]):
+        if state.stream_seen[k]:
+            any_stream = True
+    if not params.enabled or not (n_fixes > 0 or any_stream):
+        return VelocityTrack(False, False, 0.0, False, False), n_diag
     may_aid = gravity.tilt_known and not frame_broken and prior_tilt_doubt_deg < updates.converged_deg
-    to_s = vec3.rotation_rows(gravity.q_strapdown)  # body -> S
-    force_s = None if accel_body_m_s2 is None else vec3.mat_vec(to_s, vec3.floats(accel_body_m_s2))
-    knots = _knots(params, state, force_s, tick_ns, dt_ns, frame_broken)
+    to_s = rotation_rows(from_array(gravity.q_strapdown))  # body -> S
+    force_s = vec3.mat_vec(to_s, accel_body_m_s2) if has_accel else _ZERO
+    _knots(params, state, knots_ns, knots, has_accel, force_s, tick_ns, dt_ns, frame_broken)
     g = gravity_params.gravity_m_s2
     max_age_ns = round(params.max_age_s * 1e9)
-    streams = {s.key: s for s in state.streams} if fixes else {}
-    to_world = None  # S -> NED through the prediction, for the jump check: once a pair comes
-    body_lp, world_lp = state.body_lp_m_s2, state.world_lp_m_s2
+    to_world = rotation_rows(predicted_q)  # body -> NED through the prediction (after to_s^T: S -> NED), for the jump check
+    was_aiding = state.has_lp
+    has_lp = was_aiding and may_aid
+    body_lp, world_lp = vec3.load(state.body_lp_m_s2), vec3.load(state.world_lp_m_s2)
     vertical, noise_var, noise_cov, fused = state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3, False
-    recent_world, recent_ns = state.recent_world_m_s2, state.recent_ns
+    has_recent, recent_world, recent_ns = state.has_recent, vec3.load(state.recent_world_m_s2), state.recent_ns
     recent_var, recent_cov = state.recent_noise_var_m2_s4, state.recent_noise_cov_m2_s3
-    if not may_aid:
-        body_lp = world_lp = None
-    diagnostics: list[UpdateDiagnostic] = []
-    for fix, placed_ns in fixes:
-        if fix.vel_ned_m_s is None or fix.fix_type < FIX_2D:
-            diagnostics.append(UpdateDiagnostic.of("velocity", "gated", "no_fix"))
+    nan = math.nan
+
+    def unchecked(reason: int) -> Diagnostic:
+        # a fix gated before its acceleration check (a closure, inlined: a compiled function called with each reason's
+        # constant would be compiled once per constant)
+        return Diagnostic(True, VELOCITY, GATED, reason, nan, nan, nan, NOT_AIDED, False, nan, nan, nan, False)
+
+    for i in range(n_fixes):
+        fix = fixes[i]
+        if not fix.has_velocity or fix.fix_type < FIX_2D:
+            n_diag = emit(diagnostics, n_diag, unchecked(NO_FIX))
             continue
-        key = (fix.source, fix.filtered)
-        measured = placed_ns - round((params.filtered_latency_ms if fix.filtered else params.latency_ms) * 1e6)
-        previous = streams.get(key)
-        if previous is not None and fix.vel_ned_m_s == previous.vel_ned_m_s and fix.vertical_velocity == previous.vertical:
-            diagnostics.append(UpdateDiagnostic.of("velocity", "gated", "stale"))
+        slot = fix.slot
+        measured = fix.placed_ns - round((params.filtered_latency_ms if fix.filtered else params.latency_ms) * 1e6)
+        v1x, v1y, v1z = fix.vel_ned_m_s[0], fix.vel_ned_m_s[1], fix.vel_ned_m_s[2]
+        seen, previous_vertical = bool(state.stream_seen[slot]), bool(state.stream_vertical[slot])
+        previous_ns, previous_noise = state.stream_measured_ns[slot], state.stream_noise_m_s[slot]
+        v0x, v0y, v0z = state.stream_vel_ned_m_s[slot, 0], state.stream_vel_ned_m_s[slot, 1], state.stream_vel_ned_m_s[slot, 2]
+        if seen and v1x == v0x and v1y == v0y and v1z == v0z and fix.vertical_velocity == previous_vertical:
+            n_diag = emit(diagnostics, n_diag, unchecked(STALE))
             continue
-        noise_m_s = params.velocity_noise_m_s if fix.speed_accuracy_m_s is None else fix.speed_accuracy_m_s
-        streams[key] = GnssStream(key, measured, fix.vel_ned_m_s, fix.vertical_velocity, noise_m_s)
-        if previous is None or not 0 < measured - previous.measured_ns <= max_age_ns:
-            diagnostics.append(UpdateDiagnostic.of("velocity", "gated", "gap"))
+        noise_m_s = fix.speed_accuracy_m_s if fix.has_speed_accuracy else params.velocity_noise_m_s
+        state.stream_seen[slot], state.stream_measured_ns[slot] = True, measured
+        state.stream_vel_ned_m_s[slot, 0], state.stream_vel_ned_m_s[slot, 1], state.stream_vel_ned_m_s[slot, 2] = v1x, v1y, v1z
+        state.stream_vertical[slot], state.stream_noise_m_s[slot] = fix.vertical_velocity, noise_m_s
+        if not seen or not 0 < measured - previous_ns <= max_age_ns:
+            n_diag = emit(diagnostics, n_diag, unchecked(GAP))
             continue
-        span_s = (measured - previous.measured_ns) * 1e-9
-        both_vertical = fix.vertical_velocity and previous.vertical
-        (v1x, v1y, v1z), (v0x, v0y, v0z) = fix.vel_ned_m_s, previous.vel_ned_m_s
+        span_s = (measured - previous_ns) * 1e-9
+        both_vertical = fix.vertical_velocity and previous_vertical
         # the vertical unknown without vertical velocity: left to the low-pass (module docstring)
         accel = ((v1x - v0x) / span_s, (v1y - v0y) / span_s, (v1z - v0z) / span_s if both_vertical else 0.0)
         gravity_less_accel = (-accel[0], -accel[1], g - accel[2])  # g e_z - a
         # aiding or not, into what the gravity update's raw readings measure (gravity.update_gravity)
-        mid_ns = (measured + previous.measured_ns) // 2
-        if recent_world is None or recent_ns is None or mid_ns - recent_ns > max_age_ns:
-            recent_world = np.array(gravity_less_accel)
-            recent_var, recent_cov = _noise_after(0.0, 0.0, 1.0, span_s, noise_m_s, previous.noise_m_s)
+        mid_ns = (measured + previous_ns) // 2
+        if not has_recent or mid_ns - recent_ns > max_age_ns:
+            recent_world = gravity_less_accel
+            recent_var, recent_cov = _noise_after(0.0, 0.0, 1.0, span_s, noise_m_s, previous_noise)
         else:
             raw_alpha = min(1.0, span_s / params.raw_lowpass_s)
-            recent_world = np.array(vec3.toward(vec3.floats(recent_world), gravity_less_accel, raw_alpha))
-            recent_var, recent_cov = _noise_after(recent_var, recent_cov, raw_alpha, span_s, noise_m_s, previous.noise_m_s)
-        recent_ns = mid_ns
-        start, end = _force_at(knots, previous.measured_ns), _force_at(knots, measured)
-        if start is None or end is None:
-            diagnostics.append(UpdateDiagnostic.of("velocity", "gated", "gap"))
+            recent_world = vec3.toward(recent_world, gravity_less_accel, raw_alpha)
+            recent_var, recent_cov = _noise_after(recent_var, recent_cov, raw_alpha, span_s, noise_m_s, previous_noise)
+        has_recent, recent_ns = True, mid_ns
+        has_start, start = _force_at(state, knots_ns, knots, previous_ns)
+        has_end, end = _force_at(state, knots_ns, knots, measured)
+        if not has_start or not has_end:
+            n_diag = emit(diagnostics, n_diag, unchecked(GAP))
             continue
         force = ((end[0] - start[0]) / span_s, (end[1] - start[1]) / span_s, (end[2] - start[2]) / span_s)  # mean over the interval, in S
-        # the jump check: against the accelerometer's acceleration, rotated by the estimate (S -> NED), only when a pair comes
-        if to_world is None:
-            to_world = vec3.rotation_rows(predicted_q)
+        # the jump check: against the accelerometer's acceleration, rotated by the estimate (S -> NED)
         expected = vec3.mat_vec(to_world, vec3.vec_mat(force, to_s))
         difference = (accel[0] - expected[0], accel[1] - expected[1], accel[2] - (expected[2] + g) if both_vertical else 0.0)
-        variance = (2.0 * (max(noise_m_s, previous.noise_m_s) / span_s) ** 2 + (vec3.norm(force) * math.radians(prior_doubt_deg)) ** 2
-                    + params.accel_error_m_s2**2)
+        velocity_m_s2 = max(noise_m_s, previous_noise) / span_s
+        attitude_m_s2 = vec3.norm(force) * math.radians(prior_doubt_deg)
+        variance = 2.0 * velocity_m_s2 * velocity_m_s2 + attitude_m_s2 * attitude_m_s2 + params.accel_error_m_s2 * params.accel_error_m_s2
         gate = params.gate_sigma * math.sqrt(variance)
         innovation_m_s2 = vec3.norm(difference)
-        values = (("accel_innovation_m_s2", innovation_m_s2), ("accel_gate_m_s2", gate), ("interval_s", span_s), ("vertical", both_vertical))
-        ratio = (innovation_m_s2 / gate) ** 2
+        ratio = (innovation_m_s2 / gate) * (innovation_m_s2 / gate)
+        outcome, reason = GATED, NO_REASON
         if ratio > 1.0:
-            diagnostics.append(UpdateDiagnostic("velocity", "gated", "jump", test_ratio=ratio, values=values))
-            continue
-        if _selected(list(streams.values()), measured, max_age_ns) != key:
-            diagnostics.append(UpdateDiagnostic("velocity", "gated", "unselected", test_ratio=ratio, values=values))
-            continue
-        alpha = min(1.0, span_s / tau_s)
-        if body_lp is None or world_lp is None:
-            if not may_aid:
-                diagnostics.append(UpdateDiagnostic("velocity", "gated", "unconverged", test_ratio=ratio, values=values))
-                continue
-            alpha, noise_var, noise_cov = 1.0, 0.0, 0.0  # the low-pass starts from this pair: unbiased, its noise counted
-            body_lp = world_lp = _ZERO
-        body_lp = np.array(vec3.toward(vec3.floats(body_lp), (-force[0], -force[1], -force[2]), alpha))
-        world_lp = np.array(vec3.toward(vec3.floats(world_lp), gravity_less_accel, alpha))
-        noise_var, noise_cov = _noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous.noise_m_s)
-        vertical, fused = both_vertical, True
-        diagnostics.append(UpdateDiagnostic("velocity", "fused", test_ratio=ratio, values=values))
-    last = tick_ns if fused else state.last_fused_ns
-    interval = dt_ns * 1e-9 if state.last_fused_ns is None or not fused else (tick_ns - state.last_fused_ns) * 1e-9
-    active = body_lp is not None and last is not None and tick_ns - last <= max_age_ns
-    events: tuple[str, ...] = ()
-    if not active and state.body_lp_m_s2 is not None:
-        events = ("gnss_lost",)
+            reason = JUMP
+        elif _selected(state, measured, max_age_ns) != slot:
+            reason = UNSELECTED
+        elif not has_lp and not may_aid:
+            reason = UNCONVERGED
+        else:
+            alpha = min(1.0, span_s / tau_s)
+            if not has_lp:
+                alpha, noise_var, noise_cov = 1.0, 0.0, 0.0  # the low-pass starts from this pair: unbiased, its noise counted
+                has_lp, body_lp, world_lp = True, _ZERO, _ZERO
+            body_lp = vec3.toward(body_lp, (-force[0], -force[1], -force[2]), alpha)
+            world_lp = vec3.toward(world_lp, gravity_less_accel, alpha)
+            noise_var, noise_cov = _noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous_noise)
+            vertical, fused, outcome = both_vertical, True, FUSED
+        # the pair's account: its acceleration check (values accel_innovation_m_s2, accel_gate_m_s2, interval_s, vertical)
+        n_diag = emit(diagnostics, n_diag, Diagnostic(True, VELOCITY, outcome, reason, nan, nan, ratio, NOT_AIDED, True, innovation_m_s2,
+                                                      gate, span_s, both_vertical))
+    had_fused, last_fused_ns = state.has_last_fused_ns, state.last_fused_ns
+    interval = dt_ns * 1e-9 if not had_fused or not fused else (tick_ns - last_fused_ns) * 1e-9
+    if fused:
+        last_fused_ns = tick_ns
+    has_last = had_fused or fused
+    active = has_lp and has_last and tick_ns - last_fused_ns <= max_age_ns
+    lost = not active and was_aiding
     if not active:
-        body_lp = world_lp = None
-    kept = tuple(streams[k] for k in sorted(streams, key=lambda k: (k[0], k[1]))) if fixes else state.streams
+        has_lp, body_lp, world_lp = False, _ZERO, _ZERO
     # moving: a fix still fresh at this tick (measured within max_age_s plus its latency) is fast; a stream that stopped
     # in flight is not taken as moving for ever (the rest detector would never run again)
     fresh_ns = max_age_ns + round(max(params.latency_ms, params.filtered_latency_ms) * 1e6)
-    moving = any(tick_ns - s.measured_ns <= fresh_ns and math.hypot(*s.vel_ned_m_s) > params.moving_speed_m_s for s in kept)
-    after = VelocityState(kept, knots, body_lp, world_lp, vertical, noise_var, noise_cov, last, recent_world, recent_ns, recent_var, recent_cov)
-    return VelocityTrack(after, active, fused and active, interval, moving, tuple(diagnostics), events)
+    moving = False
+    for k in range(state.stream_seen.shape[0]):
+        if state.stream_seen[k] and tick_ns - state.stream_measured_ns[k] <= fresh_ns:
+            vx, vy, vz = state.stream_vel_ned_m_s[k, 0], state.stream_vel_ned_m_s[k, 1], state.stream_vel_ned_m_s[k, 2]
+            moving = moving or math.sqrt(vx * vx + vy * vy + vz * vz) > params.moving_speed_m_s
+    state.has_lp = has_lp
+    vec3.store(state.body_lp_m_s2, body_lp)
+    vec3.store(state.world_lp_m_s2, world_lp)
+    state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3 = vertical, noise_var, noise_cov
+    state.has_last_fused_ns, state.last_fused_ns = has_last, last_fused_ns if has_last else 0
+    state.has_recent, state.recent_ns = has_recent, recent_ns
+    vec3.store(state.recent_world_m_s2, recent_world)
+    state.recent_noise_var_m2_s4, state.recent_noise_cov_m2_s3 = recent_var, recent_cov
+    return VelocityTrack(active, fused and active, interval, moving, lost), n_diag
 
 
-def raw_world(params: GnssSettings, gravity: AccelSettings, state: VelocityState, tick_ns: int) -> GnssWorld | None:
-    """What a raw accelerometer reading measures in the world while fixes come: ``g e_z - a``, ``a`` the pairs'
-    acceleration low-passed over ``gnss.raw_lowpass_s``, if the newest was measured within ``gnss.max_age_s``
-    (and the fix's latency) of the tick and ``a`` is beyond three times its noise; None: down alone (an
-    acceleration the noise could make is better taken as none). In a turn the raw reading is the lift's direction,
-    the bank's vertical; with the turn's acceleration taken out it is gravity's, to within the pairs' age times the
-    turn rate (2 deg at 0.1 rad/s and 0.35 s)."""
-    if not params.enabled or state.recent_world_m_s2 is None or state.recent_ns is None:
-        return None
+@njit(cache=True, nogil=True)
+def raw_world(params: np.record, gravity_params: np.record, state: np.record, tick_ns: int) -> tuple:
+    """What a raw accelerometer reading measures in the world while fixes come: (present, ``g e_z - a``, its noise
+    per axis in m/s^2), ``a`` the pairs' acceleration low-passed over ``gnss.raw_lowpass_s``, if the newest was
+    measured within ``gnss.max_age_s`` (and the fix's latency) of the tick and ``a`` is beyond three times its
+    noise; not present: down alone (an acceleration the noise could make is better taken as none). In a turn the raw
+    reading is the lift's direction, the bank's vertical; with the turn's acceleration taken out it is gravity's, to
+    within the pairs' age times the turn rate (2 deg at 0.1 rad/s and 0.35 s)."""
+    if not params.enabled or not state.has_recent:
+        return False, _ZERO, 0.0
     if tick_ns - state.recent_ns > round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9):
-        return None
+        return False, _ZERO, 0.0
     noise_m_s2 = math.sqrt(max(state.recent_noise_var_m2_s4, 0.0))
-    x, y, z = vec3.floats(state.recent_world_m_s2)
-    if vec3.norm((-x, -y, gravity.gravity_m_s2 - z)) <= 3.0 * noise_m_s2:  # |g e_z - (g e_z - a)|
-        return None
-    return GnssWorld(state.recent_world_m_s2, noise_m_s2)
+    x, y, z = vec3.load(state.recent_world_m_s2)
+    if vec3.norm((-x, -y, gravity_params.gravity_m_s2 - z)) <= 3.0 * noise_m_s2:  # |g e_z - (g e_z - a)|
+        return False, _ZERO, 0.0
+    return True, (x, y, z), noise_m_s2
 
 
-def update_gravity_aided(params: AccelSettings, gnss: GnssSettings, updates: UpdateSettings, state: GravityState, velocity: VelocityTrack,
-                         tick: TickContext, tau_s: float, predicted_q: np.ndarray) -> GravityReading:
+@njit(cache=True, nogil=True)
+def _vector_exponent(b: tuple, r: tuple, sigma: float) -> tuple:
+    """(present, exponent): Davenport's ``K / sigma^2`` of the body direction ``b`` measured as the world direction ``r``
+    (``core.observations._davenport``) as a plain 4x4 array; not present (zeros) for a zero or not finite vector.
+    Copied out of ``_davenport``'s Optional result, so that every branch's :class:`GravityReading` has one type."""
+    b_array, r_array = np.empty(3), np.empty(3)
+    for i in range(3):
+        b_array[i], r_array[i] = b[i], r[i]
+    k = _davenport(b_array, r_array, sigma)
+    exponent = np.zeros((4, 4))
+    if k is None:
+        return False, exponent
+    for i in range(4):
+        for j in range(4):
+            exponent[i, j] = k[i, j]
+    return True, exponent
+
+
+@njit(cache=True, nogil=True)
+def update_gravity_aided(params: np.record, gnss: np.record, updates: np.record, state: np.record, velocity: np.record,
+                         track: VelocityTrack, tick: TickContext, tau_s: float, predicted_q: tuple) -> GravityReading:
     """The gravity update while GNSS aids it: the low-passed body vector ``b`` measured as the world vector ``w``
     (module docstring), once per tick with a new pair; between pairs nothing is measured. The plain update's
-    low-pass is dropped meanwhile, so that it starts again from the estimate if the aiding ends."""
-    v = velocity.state
-    if v.body_lp_m_s2 is None or v.world_lp_m_s2 is None:
-        dropped = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=state.down_body, converged=state.converged,
-                               tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=None, raw_s=0.0,
-                               measured_body=state.measured_body, gnss_checked=state.gnss_checked, measured_world=state.measured_world)
-        return GravityReading(dropped, None, False, False, None)
-    body = vec3.vec_mat(vec3.floats(v.body_lp_m_s2), vec3.rotation_rows(state.q_strapdown))  # S -> body
-    rotation = vec3.rotation_rows(predicted_q)  # body -> NED
-    world = vec3.floats(v.world_lp_m_s2)  # its vertical part g - a_v, or g without vertical velocity: free of the estimate
+    low-pass is dropped meanwhile, so that it starts again from the estimate if the aiding ends. ``state`` is the
+    ``gravity`` record (changed in place), ``velocity`` the ``velocity`` record after this tick's
+    :func:`track_velocity`, ``track`` what it returned; ``params`` the ``accel`` group."""
+    state.has_accel_lp, state.has_raw_mean, state.raw_s = False, False, 0.0  # the plain update's low-pass and raw mean dropped
+    vec3.store(state.accel_lp_m_s2, _ZERO)
+    vec3.store(state.raw_mean_m_s2, _ZERO)
+    if not velocity.has_lp:
+        return GravityReading(False, np.zeros((4, 4)), False, False, none(), False, 0.0, False)
+    body = vec3.vec_mat(vec3.load(velocity.body_lp_m_s2), rotation_rows(from_array(state.q_strapdown)))  # S -> body
+    rotation = rotation_rows(predicted_q)  # body -> NED
+    world = vec3.load(velocity.world_lp_m_s2)  # its vertical part g - a_v, or g without vertical velocity: free of the estimate
     body_norm, measured_norm = vec3.norm(body), vec3.norm(world)
-    measured_world = np.array((world[0] / measured_norm, world[1] / measured_norm, world[2] / measured_norm))
-    if not v.vertical:  # the vertical is unknown: measured are the horizontal components only (module docstring)
+    measured_world = (world[0] / measured_norm, world[1] / measured_norm, world[2] / measured_norm)
+    if not velocity.vertical:  # the vertical is unknown: measured are the horizontal components only (module docstring)
         world = (world[0], world[1], vec3.dot(rotation[2], body))
     # down in the body (the autopilot attitude's check), every tick: gravity's direction a - f, a seen through the estimate
     seen = vec3.vec_mat((world[0], world[1], world[2] - params.gravity_m_s2), rotation)  # R^T (w - g e_z)
     down = (body[0] - seen[0], body[1] - seen[1], body[2] - seen[2])
     down_norm = vec3.norm(down)
-    down_body = np.array((down[0] / down_norm, down[1] / down_norm, down[2] / down_norm))
-    measured_body = np.array((body[0] / body_norm, body[1] / body_norm, body[2] / body_norm))
-    held = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=down_body, converged=state.converged,
-                        tilt_known=state.tilt_known, gated_s=state.gated_s, raw_mean_m_s2=None, raw_s=0.0, measured_body=measured_body,
-                        gnss_checked=state.gnss_checked, measured_world=measured_world)
+    vec3.store(state.down_body, (down[0] / down_norm, down[1] / down_norm, down[2] / down_norm))
+    measured_body = (body[0] / body_norm, body[1] / body_norm, body[2] / body_norm)
+    vec3.store(state.measured_body, measured_body)
+    vec3.store(state.measured_world, measured_world)
     world_norm = vec3.norm(world)
     norm_error = abs(body_norm - world_norm) / params.gravity_m_s2
     trusted = norm_error < 0.5 * params.norm_gate_fraction
-    if not velocity.fused:
+    if not track.fused:
         # Between pairs no reading. While the vehicle holds still the bias feedback learns each tick's (magnetometer)
         # correction as without GNSS; in motion only the ticks that measured the tilt teach it: learning every tick
         # let the bias run away in the JSBSim flight's sustained turns (1.8 deg/s off while reporting 0.17).
-        return GravityReading(held, None, False, trusted and not velocity.moving, None)
-    aiding = _AIDING_3D if v.vertical else _AIDING_HORIZONTAL
+        return GravityReading(False, np.zeros((4, 4)), False, trusted and not track.moving, none(), False, 0.0, False)
+    aiding = AIDED_3D if velocity.vertical else AIDED_HORIZONTAL
+    nan = math.nan
     if norm_error > params.norm_gate_fraction:
-        return GravityReading(held, None, False, False, UpdateDiagnostic.of("gravity", "gated", "norm", values=aiding))
+        gated = Diagnostic(True, GRAVITY, GATED, NORM, nan, nan, nan, aiding, False, nan, nan, nan, False)
+        return GravityReading(False, np.zeros((4, 4)), False, False, gated, False, 0.0, False)
     predicted_world = vec3.mat_vec(rotation, body)
     innovation = vec3.angle_rad(vec3.dot(predicted_world, world) / (body_norm * world_norm))
-    interval = velocity.interval_s
+    interval = track.interval_s
     correction = math.sqrt(tick.process_variance_rad2 * interval / tick.dt_s) * tau_s / max(interval, 1e-6)
-    noise = math.sqrt(max(v.noise_var_m2_s4, 0.0)) / world_norm
-    sigma = math.sqrt(correction**2 + noise**2 * max(tau_s / interval, 1.0))
+    noise = math.sqrt(max(velocity.noise_var_m2_s4, 0.0)) / world_norm
+    sigma = math.sqrt(correction * correction + noise * noise * max(tau_s / interval, 1.0))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, interval)
-    diagnostic = UpdateDiagnostic.of("gravity", verdict.outcome, "innovation" if verdict.outcome == "gated" else "", innovation, sigma,
-                                     verdict.test_ratio, aiding)
-    after = GravityState(q_strapdown=state.q_strapdown, accel_lp_m_s2=None, down_body=down_body, converged=True, tilt_known=True,
-                         gated_s=verdict.gated_s, raw_mean_m_s2=None, raw_s=0.0, measured_body=measured_body, gnss_checked=state.gnss_checked,
-                         measured_world=measured_world)
-    if verdict.outcome == "gated":
-        return GravityReading(after, None, False, False, diagnostic)
-    return GravityReading(after, vector_exponent(measured_body, world, sigma), False, trusted, diagnostic, innovation + 2.0 * noise)
+    reason = INNOVATION if verdict.outcome == GATED else NO_REASON
+    diagnostic = Diagnostic(True, GRAVITY, verdict.outcome, reason, innovation, sigma, verdict.test_ratio, aiding, False, nan, nan, nan,
+                            False)
+    state.converged, state.tilt_known, state.gated_s = True, True, verdict.gated_s
+    if verdict.outcome != GATED:
+        present, exponent = _vector_exponent(measured_body, world, sigma)
+        if present:  # (not: a zero or not finite vector, where the old vector_exponent raised)
+            return GravityReading(True, exponent, False, trusted, diagnostic, True, innovation + 2.0 * noise, False)
+    return GravityReading(False, np.zeros((4, 4)), False, False, diagnostic, False, 0.0, False)
