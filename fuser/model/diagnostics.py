@@ -161,24 +161,20 @@ def emit(out: np.ndarray, n: int, d: Diagnostic) -> int:
     return n + 1
 
 
-def _none_if_nan(x: float) -> float | None:
-    return None if math.isnan(x) else x
-
-
 def decoded(records: np.ndarray) -> list[UpdateDiagnostic]:
-    """The :class:`UpdateDiagnostic` of each record of :data:`DIAGNOSTIC`."""
+    """The :class:`UpdateDiagnostic` of each record of :data:`DIAGNOSTIC` (NaN read as None; angles to degrees as
+    :meth:`UpdateDiagnostic.of` converts them)."""
     out = []
+    degrees = math.degrees
     for r in records.tolist():
         update, outcome, reason, innovation, sigma, ratio, aiding, check, accel_innovation, accel_gate, interval, vertical = r
-        values: tuple[tuple[str, Any], ...] = ()
-        if aiding:
-            values = (("aiding", AIDING[aiding]),)
-        elif check:
-            values = (("accel_innovation_m_s2", accel_innovation), ("accel_gate_m_s2", accel_gate), ("interval_s", interval),
-                      ("vertical", vertical))
-        if check:  # a velocity pair's: made by the constructor, its test ratio as is
-            out.append(UpdateDiagnostic(UPDATES[update], OUTCOMES[outcome], REASONS[reason], test_ratio=_none_if_nan(ratio), values=values))
-        else:
-            out.append(UpdateDiagnostic.of(UPDATES[update], OUTCOMES[outcome], REASONS[reason], _none_if_nan(innovation),  # type: ignore[arg-type]
-                                           _none_if_nan(sigma), _none_if_nan(ratio), values))
+        ratio = None if ratio != ratio else ratio  # NaN: None
+        if check:  # a velocity pair's: its acceleration check as values, no angles
+            out.append(UpdateDiagnostic(UPDATES[update], OUTCOMES[outcome], REASONS[reason], None, None, ratio, (
+                ("accel_innovation_m_s2", accel_innovation), ("accel_gate_m_s2", accel_gate), ("interval_s", interval),
+                ("vertical", vertical))))
+            continue
+        out.append(UpdateDiagnostic(UPDATES[update], OUTCOMES[outcome], REASONS[reason],  # type: ignore[arg-type]
+                                    None if innovation != innovation else degrees(innovation), None if sigma != sigma else degrees(sigma),
+                                    ratio, (("aiding", AIDING[aiding]),) if aiding else ()))
     return out

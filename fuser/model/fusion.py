@@ -150,11 +150,13 @@ def _mag_in_state_body(imu: np.ndarray, mags: np.ndarray, lags: np.ndarray, has_
 def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.ndarray, noise_table: np.ndarray,
          field_ned_gauss: np.ndarray, heading_change_rad: float, imu: np.ndarray, mags: np.ndarray, attitudes: np.ndarray,
          gnss: np.ndarray, tick_ns: int, dt_ns: int, carry_ns: int, out: np.ndarray, diagnostics: np.ndarray,
-         event_codes: np.ndarray, event_counts: np.ndarray) -> None:
+         event_codes: np.ndarray, event_counts: np.ndarray) -> tuple:
     """Fuse one tick's samples into ``state`` (module docstring); the published distribution and what it is carried
     by into ``out[0]`` (:data:`~fuser.model.tick.TICK_OUTPUT`), each update's diagnostic into ``diagnostics``
     (:data:`~fuser.model.diagnostics.DIAGNOSTIC`), the events into ``event_codes`` / ``event_counts``
-    (:data:`EVENTS`), their counts into ``out[0]``.
+    (:data:`EVENTS`), their counts into ``out[0]``; returns (diagnostics written, event pairs written, the published
+    uncertainty in degrees, the lead turned the published state, an IMU was kept out): ``out[0]``'s scalars, as
+    Python reads them fastest.
 
     ``imu`` and ``gnss`` are the tick's samples (:data:`~fuser.model.tick.IMU_INPUT`,
     :data:`~fuser.model.tick.GNSS_INPUT`), ``mags`` the separate magnetometers' fields ``(n, 3)``, ``attitudes`` the
@@ -310,12 +312,14 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
     if has_imu:
         s.gyro.has_last_imu_tick_ns, s.gyro.last_imu_tick_ns = True, tick_ns
     _copy_bingham(published_M, published_Z, o.published_M, o.published_Z)
-    o.uncertainty_deg = rms_angle_deg(saddlepoint.moments(published_Z))
+    uncertainty_deg = rms_angle_deg(saddlepoint.moments(published_Z))
+    o.uncertainty_deg = uncertainty_deg
     o.has_lead_rotation = ahead.has_rotation
     for i in range(4):
         o.lead_rotation[i] = ahead.rotation[i]
     o.imu_fault = imu_fault
     o.diagnostics, o.events = n_diag, n_events
+    return n_diag, n_events, uncertainty_deg, ahead.has_rotation, imu_fault
 
 
 class FusionModel:
@@ -335,6 +339,9 @@ class FusionModel:
         self._state = initial_state(config)
         self._field_ned_gauss = np.array(self._state.field.field_ned_gauss)
         self._out = np.zeros(1, TICK_OUTPUT)
+        self._published_M, self._published_Z, self._lead_rotation = (self._out[name][0] for name in ("published_M", "published_Z",
+                                                                                                      "lead_rotation"))
+        """Views of the tick's output (its arrays, read after every tick without a record look-up)."""
         self._diagnostics = np.zeros(16, DIAGNOSTIC)
         self._event_codes, self._event_counts = np.zeros(len(EVENTS), np.int64), np.zeros(len(EVENTS), np.int64)
 
@@ -443,15 +450,13 @@ class FusionModel:
         capacity = len(gnss_rows) + len(attitude_rows) + 4
         if capacity > self._diagnostics.shape[0]:
             self._diagnostics = np.zeros(2 * capacity, DIAGNOSTIC)
-        tick(self._params, s.record, s.knots_ns, s.knots, self._noise_table, self._field_ned_gauss, change,
+        n_diagnostics, n_events, uncertainty_deg, has_lead, imu_fault = tick(self._params, s.record, s.knots_ns, s.knots, self._noise_table, self._field_ned_gauss, change,
              np.array(imu_rows, IMU_INPUT), np.array(mag_rows, float).reshape(-1, 3) if mag_rows else _NO_MAGS,
              np.array(attitude_rows, float).reshape(-1, 4) if attitude_rows else _NO_ATTITUDES,
              np.array(gnss_rows, GNSS_INPUT) if gnss_rows else _NO_GNSS, tick_input.t_ns, tick_input.dt_ns, self._carry_ns, self._out,
              self._diagnostics, self._event_codes, self._event_counts)
-        o = self._out[0]
-        n_events = o["events"]
         updates: list[UpdateDiagnostic] = [] if field_diagnostic is None else [field_diagnostic]
-        updates += decoded(self._diagnostics[: o["diagnostics"]])
+        updates += decoded(self._diagnostics[:n_diagnostics])
         counters = self.counters
         for code, n in zip(self._event_codes[:n_events].tolist(), self._event_counts[:n_events].tolist()):
             counters[EVENTS[code]] += n
@@ -461,6 +466,6 @@ class FusionModel:
             name = counter_name(d)
             if name is not None:
                 counters[name] += 1
-        published = Bingham._trusted(o["published_M"].copy(), o["published_Z"].copy())
-        return TickResult(published, float(o["uncertainty_deg"]), tuple(updates), dict(counters), self._ahead_ns,
-                          o["lead_rotation"].copy() if o["has_lead_rotation"] else None, bool(o["imu_fault"]))
+        published = Bingham._trusted(self._published_M.copy(), self._published_Z.copy())
+        return TickResult(published, uncertainty_deg, tuple(updates), dict(counters), self._ahead_ns,
+                          self._lead_rotation.copy() if has_lead else None, imu_fault)
