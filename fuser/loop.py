@@ -329,14 +329,17 @@ def estimate_of(t_ns: int, result: TickResult, counters: Mapping[str, int], sens
     """The wire estimate of one tick (or, ``predicted``, the output predictor's from it): the published distribution's
     mode, parameters and summaries."""
     state = result.published
-    q = tuple(state.mode.tolist())
+    M = tuple(map(tuple, state.M.tolist()))
+    w, x, y, z = M[0][3], M[1][3], M[2][3], M[3][3]  # the mode (Bingham.mode): M's last column, w >= 0
+    q = (-w, -x, -y, -z) if w < 0 else (w, x, y, z)
+    roll, pitch, yaw = euler_from_quaternion(q)
     return Estimate(
         t_ns=t_ns,
         q_wxyz=q,  # type: ignore[arg-type]
-        M=tuple(map(tuple, state.M.tolist())),  # type: ignore[arg-type]
+        M=M,  # type: ignore[arg-type]
         Z=tuple(state.Z.tolist()),  # type: ignore[arg-type]
         uncertainty_deg=result.uncertainty_deg,
-        euler_deg=tuple(math.degrees(a) for a in euler_from_quaternion(q)),  # type: ignore[arg-type]
+        euler_deg=(math.degrees(roll), math.degrees(pitch), math.degrees(yaw)),
         counters=dict(counters),
         sensor_t_ns=sensor_t_ns,
         predicted=predicted,

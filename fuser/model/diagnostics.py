@@ -14,7 +14,6 @@ predicted state's RMS uncertainty; above 1 the reading lies outside the gate.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any, Literal, NamedTuple
 
 import numpy as np
@@ -27,9 +26,9 @@ Outcome = Literal["fused", "gated", "reanchored"]
 ``fuser.updates.reanchor_after_s``, fused anyway so that a wrong state can recover."""
 
 
-@dataclass(frozen=True, slots=True)
-class UpdateDiagnostic:
-    """One update's account of one tick. Angles in degrees; None where the update stopped before computing it."""
+class UpdateDiagnostic(NamedTuple):
+    """One update's account of one tick. Angles in degrees; None where the update stopped before computing it.
+    (A named tuple: one is made for every update of every tick.)"""
 
     update: str
     """``gravity``, ``heading``, ``attitude``, ``velocity`` (a GNSS fix differenced, :mod:`fuser.model.velocity`)
@@ -86,7 +85,10 @@ _COUNTERS = {
 
 def counter_name(d: UpdateDiagnostic) -> str | None:
     """The counter ``d`` increments, or None (a plain fusion is not counted)."""
-    return _COUNTERS.get((d.update, d.outcome, d.reason), None if d.outcome == "fused" else f"{d.update}_{d.outcome}_{d.reason}".rstrip("_"))
+    key = d[:3]  # (update, outcome, reason)
+    if key in _COUNTERS:
+        return _COUNTERS[key]
+    return None if d.outcome == "fused" else f"{d.update}_{d.outcome}_{d.reason}".rstrip("_")
 
 
 # -- the compiled tick's form -----------------------------------------------------------------------------------------

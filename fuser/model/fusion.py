@@ -376,8 +376,10 @@ class FusionModel:
     def _imu_slot(self, source: SourceId) -> int:
         """The IMU's slot in the state's IMU check (a new IMU the next free one; -1 beyond :data:`MAX_IMUS`)."""
         slots = self._state.imu_slots
-        if source in slots:
+        try:
             return slots.index(source)
+        except ValueError:
+            pass
         if len(slots) == MAX_IMUS:
             return -1
         self._state.imu_slots = (*slots, source)
@@ -458,8 +460,9 @@ class FusionModel:
         updates: list[UpdateDiagnostic] = [] if field_diagnostic is None else [field_diagnostic]
         updates += decoded(self._diagnostics[:n_diagnostics])
         counters = self.counters
-        for code, n in zip(self._event_codes[:n_events].tolist(), self._event_counts[:n_events].tolist()):
-            counters[EVENTS[code]] += n
+        if n_events:
+            for code, n in zip(self._event_codes[:n_events].tolist(), self._event_counts[:n_events].tolist()):
+                counters[EVENTS[code]] += n
         for name, n in dropped:
             counters[name] += n
         for d in updates:

@@ -178,9 +178,8 @@ class Lead(NamedTuple):
     variance_rad2: float
 
 
-@dataclass(frozen=True, slots=True)
-class TickResult:
-    """The model's answer for one tick."""
+class TickResult(NamedTuple):
+    """The model's answer for one tick. (A named tuple: the loop makes one for every estimate.)"""
 
     published: Bingham
     """The published attitude distribution: the filter's, carried ``ahead_ns`` past the tick
