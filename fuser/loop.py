@@ -343,5 +343,5 @@ def estimate_of(t_ns: int, result: TickResult, counters: Mapping[str, int], sens
         counters=dict(counters),
         sensor_t_ns=sensor_t_ns,
         predicted=predicted,
-        diagnostics=tuple(d.to_dict() for d in result.diagnostics),
+        diagnostics=tuple([d.to_dict() for d in result.diagnostics]),
     )

@@ -59,8 +59,11 @@ class UpdateDiagnostic(NamedTuple):
         return cls(update, outcome, reason, deg, None if sigma_rad is None else math.degrees(sigma_rad), test_ratio, values)
 
     def to_dict(self) -> dict[str, Any]:
-        return {"update": self.update, "outcome": self.outcome, "reason": self.reason, "innovation_deg": self.innovation_deg,
-                "sigma_deg": self.sigma_deg, "test_ratio": self.test_ratio, **dict(self.values)}
+        out = {"update": self.update, "outcome": self.outcome, "reason": self.reason, "innovation_deg": self.innovation_deg,
+               "sigma_deg": self.sigma_deg, "test_ratio": self.test_ratio}
+        if self.values:
+            out.update(self.values)
+        return out
 
 
 _COUNTERS = {
