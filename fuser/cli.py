@@ -520,7 +520,10 @@ def _warm_up(config: FuserConfig) -> None:
     """Compile (or load) the filter's kernels before a live run (fuser/warmup.py)."""
     from fuser.warmup import warm_up
 
-    log.debug("kernels ready in %.1f s", warm_up(config))
+    def notice() -> None:
+        print("compiling the filter (once after installing, about 30 s; cached for later runs)...", file=sys.stderr, flush=True)
+
+    log.debug("kernels ready in %.1f s", warm_up(config, notice))
 
 
 def _estimate_sinks(pub: Any, rec: Any) -> list:
