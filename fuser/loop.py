@@ -260,9 +260,12 @@ class FusionLoop:
 
     def _predicted_through(self, sample: Sample, placed_ns: int) -> bool:
         """Turn the output predictor through ``sample`` if it is the reference IMU's; True if it now ends there."""
-        if self._output is None or not isinstance(sample, ImuSample) or sample.source != self.reference_imu or not self._output.active:
+        if self._output is None or not self._is_reference_imu(sample):
             return False
-        return self._output.advance(sample.gyro_rad_s, placed_ns)
+        return self._output.advance(sample.gyro_rad_s, placed_ns)  # False if the prediction has stopped
+
+    def _is_reference_imu(self, sample: Sample) -> bool:
+        return isinstance(sample, ImuSample) and sample.source == self.reference_imu
 
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
@@ -306,8 +309,7 @@ class FusionLoop:
                 output.stop()
             else:
                 self.model.start_output(output)
-            for placed, _, sample in self._pending:
-                self._predicted_through(sample, placed)
+            output.advance_through([(sample.gyro_rad_s, placed) for placed, _, sample in self._pending if self._is_reference_imu(sample)])
             if output.active:
                 published = output.at(stamp)
         else:

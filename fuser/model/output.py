@@ -170,6 +170,16 @@ def _advance(params: np.ndarray, out: np.ndarray, rate_rad_s: tuple, placed_ns: 
     return advanced(params[0].gyro, out, rate_rad_s, placed_ns)
 
 
+@njit(cache=True, nogil=True)
+def _advance_all(params: np.ndarray, out: np.ndarray, rates_rad_s: np.ndarray, placed_ns: np.ndarray) -> None:
+    """:func:`advanced` through each sample in turn (row ``i`` of ``rates_rad_s`` placed at ``placed_ns[i]``), until
+    the prediction stops."""
+    for i in range(placed_ns.shape[0]):
+        if not out[0].active:
+            return
+        advanced(params[0].gyro, out, (rates_rad_s[i, 0], rates_rad_s[i, 1], rates_rad_s[i, 2]), placed_ns[i])
+
+
 class OutputPredictor:
     """The predictor as the loop drives it: started by the model after each tick
     (:meth:`fuser.model.FusionModel.start_output`), turned through each sample of the reference IMU
@@ -197,6 +207,13 @@ class OutputPredictor:
     def advance(self, rate_rad_s: tuple[float, float, float], placed_ns: int) -> bool:
         """Turn through one more sample of the reference IMU (:func:`advanced`); True if the prediction now ends there."""
         return _advance(self._params, self._out, rate_rad_s, placed_ns)
+
+    def advance_through(self, samples: list[tuple[tuple[float, float, float], int]]) -> None:
+        """:meth:`advance` through each (rate, placed) of ``samples`` in turn, in one compiled call (after a tick,
+        through the samples already received)."""
+        if samples:
+            rates = np.array([rate for rate, _ in samples], float)
+            _advance_all(self._params, self._out, rates, np.array([placed for _, placed in samples], np.int64))
 
     def at(self, stamp_ns: int) -> Bingham:
         """The predicted distribution at ``stamp_ns`` (:func:`at`)."""
