@@ -4,6 +4,7 @@
     python benchmarks/bench_fuser.py --skip-live --skip-replay   # the per-message costs only
     python benchmarks/bench_fuser.py --profile  # and where replay time goes (cProfile)
     python benchmarks/bench_fuser.py --baseline main --skip-live --skip-messages   # replay and per tick, REF beside this tree
+    python benchmarks/bench_fuser.py --skip-live --skip-messages --ticks-only     # replay without the output predictor
 
 (a) Replay throughput, end to end: decode every input from the MCAP, run the
     loop, write inputs and estimates to a new MCAP; IMU samples per second of
@@ -93,10 +94,16 @@ def sim_log(path: Path, seconds: float, imu_hz: float) -> None:
         run_sim(pipeline, simulate(SimConfig(duration_s=seconds, imu_rate_hz=imu_hz)), "mavlink", 0, [rec.write_truth])
 
 
+TICKS_ONLY_ENV = "BENCH_TICKS_ONLY"
+"""Set (by ``--ticks-only``, for this process and a ``--baseline`` child): replay with one estimate per tick."""
+
+
 def config_for(log: Path) -> FuserConfig:
-    """The settings a log is replayed with: the .toml beside it (an imported log's earth field), else the defaults."""
+    """The settings a log is replayed with: the .toml beside it (an imported log's earth field), else the defaults;
+    with ``--ticks-only``, the output predictor off (``[fuser.extrapolation] every_imu_sample = false``)."""
     toml = log.with_suffix(".toml")
-    return load_config(toml if toml.exists() else None)
+    config = load_config(toml if toml.exists() else None)
+    return config.replace(extrapolation={"every_imu_sample": False}) if os.environ.get(TICKS_ONLY_ENV) else config
 
 
 def bench_replay(log: Path, out: Path, repeats: int = 3) -> dict:
@@ -374,9 +381,13 @@ def main() -> int:
     parser.add_argument("--skip-replay", action="store_true")
     parser.add_argument("--skip-messages", action="store_true", help="skip the per-message costs")
     parser.add_argument("--record", action="store_true", help="live run records to MCAP too, as `run --record` does")
+    parser.add_argument("--ticks-only", action="store_true",
+                        help="replay with one estimate per tick ([fuser.extrapolation] every_imu_sample = false), as a fleet replay may")
     parser.add_argument("--baseline", metavar="REF", help="also replay every log with the code of git revision REF, in the same run")
     parser.add_argument("--replay-json", nargs="+", type=Path, help=argparse.SUPPRESS)  # a --baseline child: these logs, as JSON
     args = parser.parse_args()
+    if args.ticks_only:
+        os.environ[TICKS_ONLY_ENV] = "1"
     if args.replay_json:
         with tempfile.TemporaryDirectory() as tmp:
             print(json.dumps({str(log): bench_replay(log, Path(tmp) / "out.mcap") for log in args.replay_json}))
