@@ -104,7 +104,7 @@ def test_the_field_sets_these_checks_cover():
                                     "has_raw_mean", "raw_mean_m_s2", "raw_s", "measured_body", "gnss_checked", "measured_world")
     assert UNAIDED_FIELDS.names == ("excess_m2_s4", "has_norm_mean", "norm_mean_m_s2", "norm_mean_s", "absorbed_rad")
     assert ATTITUDE_SOURCE.names == ("gated_s", "has_last_fused_ns", "last_fused_ns")
-    assert HEADING.names == ("gated_s", "has_last_reading_ns", "last_reading_ns")
+    assert HEADING.names == ("gated_s", "has_last_reading_ns", "last_reading_ns", "has_last_fused_ns", "last_fused_ns")
     assert REST.names == ("has_lp", "gyro_lp_rad_s", "accel_lp_m_s2", "still_s", "at_rest")
     assert BIAS.names == ("estimate_rad_s", "covariance_rad2_s2", "has_lp", "rotation_lp", "rotated_lp_rad_s", "tilt_aided", "tilt_settled_s")
     assert MODEL_ERROR.names == ("rate_sq",)

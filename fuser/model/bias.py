@@ -169,6 +169,23 @@ def variance_rad2_s2(bias: np.record) -> float:
 
 
 @njit(cache=True, nogil=True)
+def held_heading_variance_rad2(params_bias: np.record, bias: np.record, q_wxyz: tuple, held_s: float) -> float:
+    """Heading variance (rad^2) of a bias error along the vertical held uncorrected for ``held_s``, beyond what the
+    prediction counted (:func:`fuser.model.propagation.predict`: the mean per-axis bias variance correlated over
+    ``tau``, ``sigma^2 tau dt`` per tick). The in-motion learning corrects the horizontal axes within ``tau``; along
+    the vertical nothing corrects it while the heading is not measured, and an error ``e`` held for ``T`` turns the
+    heading by ``e T``: ``sigma_v^2 T^2 - sigma^2 tau T`` (``q_wxyz`` the attitude, body -> NED)."""
+    tau = params_bias.time_constant_s if params_bias.feedback_enabled else params_bias.correlation_without_feedback_s
+    down = rotation_rows(q_wxyz)[2]  # world down in the body frame
+    c = bias.covariance_rad2_s2
+    vertical = 0.0
+    for i in range(3):
+        for j in range(3):
+            vertical += down[i] * c[i, j] * down[j]
+    return max(0.0, vertical * held_s * held_s - variance_rad2_s2(bias) * tau * held_s)
+
+
+@njit(cache=True, nogil=True)
 def propagate(params_bias: np.record, bias: np.record, dt_s: float) -> None:
     """The bias uncertainty grows by its random walk over ``dt_s``, each axis up to its initial value."""
     walk = params_bias.walk_rad_s_rt_s * params_bias.walk_rad_s_rt_s * dt_s

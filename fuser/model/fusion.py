@@ -268,6 +268,7 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
             n_diag = emit(diagnostics, n_diag, heading_reading.diagnostic)
             if heading_reading.fused:
                 exponent += heading_reading.exponent
+                h.has_last_fused_ns, h.last_fused_ns = True, tick_ns
     attitude_fused = attitude.attitude_in_use(p.attitude, s.gyro, tick_ns)
     if attitudes.shape[0] and attitude_fused:
         source = s.attitude_source
@@ -302,6 +303,9 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
         widening += math.radians(p.imu_check.fault_sigma_deg) ** 2
     unseen_tilt, unseen_heading = unaided.unseen_variances_rad2(p.accel, s.unaided, p.mag.enabled,
                                                                 (field_ned_gauss[0], field_ned_gauss[1], field_ned_gauss[2]))
+    held_s = _heading_held_s(s.heading, s.attitude_source, tick_ns)
+    if p.mag.enabled and held_s > 0.0:  # the heading held on the gyro since a magnetometer or the autopilot last corrected it
+        unseen_heading += bias.held_heading_variance_rad2(p.bias, s.bias, posterior_q, held_s)
     carried_M = rotated_right(np.array(ahead.rotation), M) if ahead.has_rotation else M
     published_M, published_Z = model_error.published(p.model_error, carried_M, Z, s.model_error.rate_sq, p.mag.enabled, widening,
                                                      unseen_tilt, unseen_heading)
@@ -320,6 +324,16 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
     o.imu_fault = imu_fault
     o.diagnostics, o.events = n_diag, n_events
     return n_diag, n_events, uncertainty_deg, ahead.has_rotation, imu_fault
+
+
+@njit(cache=True, nogil=True)
+def _heading_held_s(heading_state: np.record, attitude_source: np.record, tick_ns: int) -> float:
+    """Seconds since the heading was last corrected: a magnetometer reading or the autopilot's attitude fused
+    (0 if it never was: then the filter's own heading is not known either)."""
+    corrected, last = heading_state.has_last_fused_ns, heading_state.last_fused_ns
+    if attitude_source.has_last_fused_ns and (not corrected or attitude_source.last_fused_ns > last):
+        corrected, last = True, attitude_source.last_fused_ns
+    return (tick_ns - last) * 1e-9 if corrected else 0.0
 
 
 class FusionModel:

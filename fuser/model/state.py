@@ -118,6 +118,8 @@ HEADING = _record(
     ("gated_s", "f8"),  # seconds of continuous gating by innovation
     ("has_last_reading_ns", "?"),
     ("last_reading_ns", "i8"),  # tick of the last magnetometer reading
+    ("has_last_fused_ns", "?"),
+    ("last_fused_ns", "i8"),  # tick of the last magnetometer reading fused
 )
 
 ATTITUDE_SOURCE = _record(
