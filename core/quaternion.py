@@ -13,7 +13,7 @@ Distribution" (unscented paper), sec. II and eq. (4).
 from __future__ import annotations
 
 import math
-from typing import Literal, Sequence
+from typing import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray

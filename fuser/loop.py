@@ -305,10 +305,7 @@ class FusionLoop:
         if output is not None:  # extrapolation.every_imu_sample: the tick's state turned through the samples already here
             # stamped when due, or with the last prediction's stamp if a sample received after that went first
             stamp, published = max(tick_ns + self._wait_ns, self._last_stamp_ns), result.published
-            if result.imu_fault:
-                output.stop()
-            else:
-                self.model.start_output(output)
+            self.model.start_output(output)
             output.advance_through([(sample.gyro_rad_s, placed) for placed, _, sample in self._pending if self._is_reference_imu(sample)])
             if output.active:
                 published = output.at(stamp)

@@ -133,8 +133,10 @@ def published(params_model_error: np.record, M: np.ndarray, Z: np.ndarray, rate_
               unseen_tilt_rad2: float, unseen_heading_rad2: float) -> tuple:
     """``(M, Z)`` of the published state: the Bingham ``(M, Z)`` with the model error at ``rate_sq``
     (:func:`with_model_error`), a further independent error of per-axis variance ``isotropic_rad2`` on every axis
-    (the held gyro rate's, for one) and ``unseen_tilt_rad2``, ``unseen_heading_rad2`` of an acceleration the filter
-    cannot see (:mod:`fuser.model.unaided`); ``M`` and ``Z`` themselves when there is none."""
+    (the held gyro rate's, for one) and ``unseen_tilt_rad2``, ``unseen_heading_rad2`` of what the filter's state does
+    not carry (an acceleration it cannot see, :mod:`fuser.model.unaided`; the heading's, also a bias error held while
+    the heading is not corrected, :func:`fuser.model.bias.held_heading_variance_rad2`); ``M`` and ``Z`` themselves when
+    there is none."""
     tilt, heading = model_error_variances(params_model_error, rate_sq, heading_floor)
     tilt, heading = tilt + isotropic_rad2 + unseen_tilt_rad2, heading + isotropic_rad2 + unseen_heading_rad2
     if tilt == 0.0 and heading == 0.0:

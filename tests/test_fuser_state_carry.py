@@ -151,7 +151,7 @@ def test_the_aided_update_keeps_what_it_does_not_measure(fused):
     state = _state(gravity=GRAVITY, velocity=velocity)
     track = VelocityTrack(True, fused, 0.1, False, False)
     changed = {"has_accel_lp", "accel_lp_m_s2", "down_body", "has_raw_mean", "raw_mean_m_s2", "raw_s", "measured_body", "measured_world"}
-    _changes(state, lambda: update_gravity_aided(P.accel, P.gnss, P.updates, state.gravity, state.velocity, track, TICK, 3.0, TILT),
+    _changes(state, lambda: update_gravity_aided(P.accel, P.updates, state.gravity, state.velocity, track, TICK, 3.0, TILT),
              "gravity", changed=changed, free={"converged", "tilt_known", "gated_s"} if fused else set())
     g = state.gravity
     assert not g.has_accel_lp and not g.has_raw_mean and g.raw_s == 0.0

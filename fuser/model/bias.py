@@ -128,8 +128,8 @@ from fuser.model import vec3
 from fuser.model.diagnostics import FUSED
 from fuser.model.tick import GravityReading, HeadingReading, TickContext, VelocityTrack
 
-__all__ = ["SETTLE_TIME_CONSTANTS", "HeadingEvidence", "TiltEvidence", "integral_feedback", "learn_from_tick", "learn_in_motion",
-           "low_pass", "may_learn", "propagate", "reading_gain", "variance_rad2_s2"]
+__all__ = ["SETTLE_TIME_CONSTANTS", "HeadingEvidence", "TiltEvidence", "correlation_s", "held_heading_variance_rad2", "integral_feedback",
+           "learn_from_tick", "learn_in_motion", "low_pass", "may_learn", "propagate", "reading_gain", "variance_rad2_s2"]
 
 SETTLE_TIME_CONSTANTS = 2.0
 """The tilt correction teaches the bias once the low-passes have followed it for this many time constants: before,
@@ -169,13 +169,20 @@ def variance_rad2_s2(bias: np.record) -> float:
 
 
 @njit(cache=True, nogil=True)
+def correlation_s(params_bias: np.record) -> float:
+    """How long a residual bias error persists in the prediction's process noise: the in-motion learning's time
+    constant while it runs, ``correlation_without_feedback_s`` without it."""
+    return params_bias.time_constant_s if params_bias.feedback_enabled else params_bias.correlation_without_feedback_s
+
+
+@njit(cache=True, nogil=True)
 def held_heading_variance_rad2(params_bias: np.record, bias: np.record, q_wxyz: tuple, held_s: float) -> float:
     """Heading variance (rad^2) of a bias error along the vertical held uncorrected for ``held_s``, beyond what the
     prediction counted (:func:`fuser.model.propagation.predict`: the mean per-axis bias variance correlated over
     ``tau``, ``sigma^2 tau dt`` per tick). The in-motion learning corrects the horizontal axes within ``tau``; along
     the vertical nothing corrects it while the heading is not measured, and an error ``e`` held for ``T`` turns the
     heading by ``e T``: ``sigma_v^2 T^2 - sigma^2 tau T`` (``q_wxyz`` the attitude, body -> NED)."""
-    tau = params_bias.time_constant_s if params_bias.feedback_enabled else params_bias.correlation_without_feedback_s
+    tau = correlation_s(params_bias)
     down = rotation_rows(q_wxyz)[2]  # world down in the body frame
     c = bias.covariance_rad2_s2
     vertical = 0.0

@@ -51,13 +51,6 @@ class UpdateDiagnostic(NamedTuple):
     """Further named values of this update, in order (``mag_field``: the field and where it is from; ``velocity``:
     the acceleration check in m/s^2; the aided ``gravity``: what aided it); added to the record as keys."""
 
-    @classmethod
-    def of(cls, update: str, outcome: Outcome, reason: str = "", innovation_rad: float | None = None,
-           sigma_rad: float | None = None, test_ratio: float | None = None, values: tuple[tuple[str, Any], ...] = ()) -> UpdateDiagnostic:
-        """From radians, as the updates compute them."""
-        deg = None if innovation_rad is None else math.degrees(innovation_rad)
-        return cls(update, outcome, reason, deg, None if sigma_rad is None else math.degrees(sigma_rad), test_ratio, values)
-
     def to_dict(self) -> dict[str, Any]:
         out = {"update": self.update, "outcome": self.outcome, "reason": self.reason, "innovation_deg": self.innovation_deg,
                "sigma_deg": self.sigma_deg, "test_ratio": self.test_ratio}
@@ -148,7 +141,7 @@ def none() -> Diagnostic:
 
 @njit(cache=True, nogil=True)
 def of(update: int, outcome: int, reason: int, innovation_rad: float, sigma_rad: float, test_ratio: float, aiding: int) -> Diagnostic:
-    """An update's account without an acceleration check (the form of :meth:`UpdateDiagnostic.of`; NaN for None)."""
+    """An update's account without an acceleration check (radians, as the updates compute them; NaN for None)."""
     nan = math.nan
     return Diagnostic(True, update, outcome, reason, innovation_rad, sigma_rad, test_ratio, aiding, False, nan, nan, nan, False)
 
@@ -167,8 +160,7 @@ def emit(out: np.ndarray, n: int, d: Diagnostic) -> int:
 
 
 def decoded(records: np.ndarray) -> list[UpdateDiagnostic]:
-    """The :class:`UpdateDiagnostic` of each record of :data:`DIAGNOSTIC` (NaN read as None; angles to degrees as
-    :meth:`UpdateDiagnostic.of` converts them)."""
+    """The :class:`UpdateDiagnostic` of each record of :data:`DIAGNOSTIC` (NaN read as None; angles to degrees)."""
     out = []
     degrees = math.degrees
     for r in records.tolist():

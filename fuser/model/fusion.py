@@ -30,7 +30,10 @@ reference field (:mod:`fuser.model.field`, the World Magnetic Model through
 4. **Publish**: the posterior carried ahead of the tick to the time it is
    for (:mod:`~fuser.model.extrapolation`), widened by the model error
    (:mod:`fuser.model_error`), by the error of a gyro rate held since the
-   last sample and over the lead, and while an IMU is kept out.
+   last sample and over the lead, while an IMU is kept out, by the tilt an
+   unaided accelerometer cannot see (:mod:`~fuser.model.unaided`), and by the
+   bias error along the vertical while the heading is held on the gyro
+   (:func:`~fuser.model.bias.held_heading_variance_rad2`).
 
 The state is at the tick's end: the gyro carries it over the whole tick, and
 every reading is turned into the body frame of that instant.
@@ -47,7 +50,7 @@ from numba import njit
 from core import saddlepoint
 from core.bingham import Bingham
 from core.bingham_kernels import mode, product_parameters, rms_angle_deg, rotated_left, rotated_right
-from core.quaternion_kernels import from_array, yaw_turn
+from core.quaternion_kernels import yaw_turn
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, MagSample, SourceId
 from fuser import model_error
 from fuser.config import FuserConfig
@@ -74,7 +77,6 @@ _RESTART_RAD2 = math.radians(60.0) ** 2
 """Per-axis variance added to the state when the fast start runs again: wide enough for its raw readings and
 fast-start headings to take it (unconverged, ``updates.converged_deg``), as at a cold start."""
 
-_ZERO3 = (0.0, 0.0, 0.0)
 _NO_MAGS, _NO_ATTITUDES, _NO_GNSS = np.empty((0, 3)), np.empty((0, 4)), np.empty(0, GNSS_INPUT)
 """A tick without such samples (most ticks): the same empty arrays each time."""
 
@@ -133,7 +135,7 @@ def _mag_in_state_body(imu: np.ndarray, mags: np.ndarray, lags: np.ndarray, has_
             n += 1
     count = mags.shape[0] + (1 if n else 0)
     if count == 0:
-        return False, _ZERO3
+        return False, vec3.ZERO
     sx = sy = sz = 0.0
     for k in range(mags.shape[0]):
         sx, sy, sz = sx + mags[k, 0], sy + mags[k, 1], sz + mags[k, 2]
@@ -154,9 +156,7 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
     """Fuse one tick's samples into ``state`` (module docstring); the published distribution and what it is carried
     by into ``out[0]`` (:data:`~fuser.model.tick.TICK_OUTPUT`), each update's diagnostic into ``diagnostics``
     (:data:`~fuser.model.diagnostics.DIAGNOSTIC`), the events into ``event_codes`` / ``event_counts``
-    (:data:`EVENTS`), their counts into ``out[0]``; returns (diagnostics written, event pairs written, the published
-    uncertainty in degrees, the lead turned the published state, an IMU was kept out): ``out[0]``'s scalars, as
-    Python reads them fastest.
+    (:data:`EVENTS`); returns (diagnostics written, event pairs written, the published uncertainty in degrees).
 
     ``imu`` and ``gnss`` are the tick's samples (:data:`~fuser.model.tick.IMU_INPUT`,
     :data:`~fuser.model.tick.GNSS_INPUT`), ``mags`` the separate magnetometers' fields ``(n, 3)``, ``attitudes`` the
@@ -204,7 +204,7 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
                           velocity.tilt_doubt_deg(predicted_M, predicted_moments))
     predicted_q = mode(predicted_M)
     has_rate = motion.known_s > 0.0
-    raw_rate = vec3.scaled(motion.raw_rotation_rad, 1.0 / motion.known_s) if has_rate else _ZERO3
+    raw_rate = vec3.scaled(motion.raw_rotation_rad, 1.0 / motion.known_s) if has_rate else vec3.ZERO
     body_rate = vec3.sub(raw_rate, vec3.load(s.bias.estimate_rad_s))
 
     # 2. updates, gated against the prediction; their exponents add up to one product
@@ -214,7 +214,7 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
     lags = np.empty(imu.shape[0])
     for i in range(imu.shape[0]):
         lags[i] = (tick_ns - imu[i].placed_ns) * 1e-9
-    accel = body_frame.mean_in_state_body(_vectors(imu, True), lags, has_rate, body_rate) if has_imu else _ZERO3
+    accel = body_frame.mean_in_state_body(_vectors(imu, True), lags, has_rate, body_rate) if has_imu else vec3.ZERO
     tau = gravity.tilt_time_constant_s(p.accel, p.bias, bias.variance_rad2_s2(s.bias))
     track, n_diag = velocity.track_velocity(p.gnss, p.accel, p.updates, s.velocity, knots_ns, knots, gnss, s.gravity, has_imu, accel,
                                             tick_ns, dt_ns, predicted_q, context.prior_doubt_deg, context.prior_tilt_doubt_deg, tau,
@@ -232,7 +232,7 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
                 n_events = _event(event_codes, event_counts, n_events, REST_TICKS, 1)
                 rest.measure_bias(p.rest, s.rest, s.bias, interval)
         if track.active:
-            reading = velocity.update_gravity_aided(p.accel, p.gnss, p.updates, s.gravity, s.velocity, track, context, tau, predicted_q)
+            reading = velocity.update_gravity_aided(p.accel, p.updates, s.gravity, s.velocity, track, context, tau, predicted_q)
         else:
             has_world, world, world_noise = velocity.raw_world(p.gnss, p.accel, s.velocity, tick_ns)
             reading = gravity.update_gravity(p.accel, p.updates, s.gravity, context, accel, tau, predicted_q, interval, p.mag.enabled,
@@ -296,7 +296,8 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
                              frame_broken or not s.gravity.converged)
 
     # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
-    # the last sample and over the lead, an IMU kept out and, without GNSS aiding, the acceleration the norm reveals
+    # the last sample and over the lead, an IMU kept out, without GNSS aiding the acceleration the norm reveals, and
+    # the bias error along the vertical while the heading is held on the gyro
     ahead = extrapolation.lead(p.gyro, s.gyro, vec3.load(s.bias.estimate_rad_s), tick_ns, carry_ns)
     widening = motion.hold_variance_rad2 + ahead.variance_rad2
     if imu_fault:
@@ -317,13 +318,11 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
         s.gyro.has_last_imu_tick_ns, s.gyro.last_imu_tick_ns = True, tick_ns
     _copy_bingham(published_M, published_Z, o.published_M, o.published_Z)
     uncertainty_deg = rms_angle_deg(saddlepoint.moments(published_Z))
-    o.uncertainty_deg = uncertainty_deg
     o.has_lead_rotation = ahead.has_rotation
     for i in range(4):
         o.lead_rotation[i] = ahead.rotation[i]
     o.imu_fault = imu_fault
-    o.diagnostics, o.events = n_diag, n_events
-    return n_diag, n_events, uncertainty_deg, ahead.has_rotation, imu_fault
+    return n_diag, n_events, uncertainty_deg
 
 
 @njit(cache=True, nogil=True)
@@ -337,7 +336,8 @@ def _heading_held_s(heading_state: np.record, attitude_source: np.record, tick_n
 
 
 class FusionModel:
-    """Bingham attitude fusion of any number of IMUs, magnetometers and attitude sources.
+    """Bingham attitude fusion of up to :data:`MAX_IMUS` IMUs (and :data:`MAX_GNSS_STREAMS` GNSS streams; samples of
+    further ones are counted, not fused), magnetometers and attitude sources.
 
     ``config`` holds the parameters; :attr:`state` the persistent state (read,
     set, :meth:`reset`), the reference field in use included. :meth:`step` runs one tick.
@@ -353,8 +353,7 @@ class FusionModel:
         self._state = initial_state(config)
         self._field_ned_gauss = np.array(self._state.field.field_ned_gauss)
         self._out = np.zeros(1, TICK_OUTPUT)
-        self._published_M, self._published_Z, self._lead_rotation = (self._out[name][0] for name in ("published_M", "published_Z",
-                                                                                                      "lead_rotation"))
+        self._published_M, self._published_Z = (self._out[name][0] for name in ("published_M", "published_Z"))
         """Views of the tick's output (its arrays, read after every tick without a record look-up)."""
         self._diagnostics = np.zeros(16, DIAGNOSTIC)
         self._event_codes, self._event_counts = np.zeros(len(EVENTS), np.int64), np.zeros(len(EVENTS), np.int64)
@@ -434,7 +433,7 @@ class FusionModel:
                     dropped.append((EVENTS[IMU_TOO_MANY], 1))
                     continue
                 mag = x.mag_gauss
-                imu_rows.append((t, x.gyro_rad_s, x.accel_m_s2, mag is not None, _ZERO3 if mag is None else mag, slot))
+                imu_rows.append((t, x.gyro_rad_s, x.accel_m_s2, mag is not None, vec3.ZERO if mag is None else mag, slot))
             elif kind is MagSample:
                 mag_rows.append(x.mag_gauss)
             elif kind is AttitudeSample:
@@ -446,7 +445,7 @@ class FusionModel:
                     dropped.append((EVENTS[GNSS_TOO_MANY], 1))
                     continue
                 accuracy = x.speed_accuracy_m_s
-                gnss_rows.append((t, x.fix_type, x.vel_ned_m_s is not None, x.vel_ned_m_s or _ZERO3, x.vertical_velocity,
+                gnss_rows.append((t, x.fix_type, x.vel_ned_m_s is not None, x.vel_ned_m_s or vec3.ZERO, x.vertical_velocity,
                                   accuracy is not None, math.nan if accuracy is None else accuracy, x.filtered, slot))
         return imu_rows, mag_rows, attitude_rows, gnss_rows, fixes, dropped
 
@@ -466,7 +465,7 @@ class FusionModel:
         capacity = len(gnss_rows) + len(attitude_rows) + 4
         if capacity > self._diagnostics.shape[0]:
             self._diagnostics = np.zeros(2 * capacity, DIAGNOSTIC)
-        n_diagnostics, n_events, uncertainty_deg, has_lead, imu_fault = tick(self._params, s.record, s.knots_ns, s.knots, self._noise_table, self._field_ned_gauss, change,
+        n_diagnostics, n_events, uncertainty_deg = tick(self._params, s.record, s.knots_ns, s.knots, self._noise_table, self._field_ned_gauss, change,
              np.array(imu_rows, IMU_INPUT), np.array(mag_rows, float).reshape(-1, 3) if mag_rows else _NO_MAGS,
              np.array(attitude_rows, float).reshape(-1, 4) if attitude_rows else _NO_ATTITUDES,
              np.array(gnss_rows, GNSS_INPUT) if gnss_rows else _NO_GNSS, tick_input.t_ns, tick_input.dt_ns, self._carry_ns, self._out,
@@ -484,5 +483,4 @@ class FusionModel:
             if name is not None:
                 counters[name] += 1
         published = Bingham._trusted(self._published_M.copy(), self._published_Z.copy())
-        return TickResult(published, uncertainty_deg, tuple(updates), dict(counters), self._ahead_ns,
-                          self._lead_rotation.copy() if has_lead else None, imu_fault)
+        return TickResult(published, uncertainty_deg, tuple(updates), dict(counters), self._ahead_ns)

@@ -67,7 +67,7 @@ from fuser.model.diagnostics import AIDED_RAW, FUSED, GATED, GRAVITY, INNOVATION
 from fuser.model.gate import fast_start_sigma_rad, innovation_gate
 from fuser.model.tick import GravityReading, TickContext
 
-__all__ = ["DOWN_NED", "no_reading", "tilt_time_constant_s", "turn_frame", "update_gravity"]
+__all__ = ["DOWN_NED", "drop_lp", "no_reading", "tilt_time_constant_s", "turn_frame", "update_gravity"]
 
 DOWN_NED = (0.0, 0.0, 1.0)
 """World down in NED: the reference direction of the gravity measurement (a frame convention, not a tuning)."""
@@ -83,6 +83,12 @@ def _store_lp(gravity: np.record, has_lp: bool, lp_m_s2: tuple, has_raw_mean: bo
     gravity.raw_s = raw_s
 
 
+@njit(cache=True, nogil=True, inline="always")  # inlined: two lines, called from two modules' updates
+def drop_lp(gravity: np.record) -> None:
+    """The low-pass and the raw readings' mean dropped (a gyro gap; the GNSS-aided update running instead)."""
+    _store_lp(gravity, False, vec3.ZERO, False, vec3.ZERO, 0.0)
+
+
 @njit(cache=True, nogil=True)
 def turn_frame(gravity: np.record, has_rotation: bool, rotation: tuple, gap_s: float) -> None:
     """The strapdown frame after the tick's gyro rotation (``has_rotation`` False: none known), in place. A gap in
@@ -94,7 +100,7 @@ def turn_frame(gravity: np.record, has_rotation: bool, rotation: tuple, gap_s: f
         for i in range(4):
             gravity.q_strapdown[i] = q[i]
     if gap_s > 0.0:  # the raw readings' mean too, converged or not
-        _store_lp(gravity, False, vec3.ZERO, False, vec3.ZERO, 0.0)
+        drop_lp(gravity)
         gravity.converged = False
 
 

@@ -159,8 +159,13 @@ def at(out: np.ndarray, stamp_ns: int, imu_delay_ns: int, M_out: np.ndarray) -> 
 
 @njit(cache=True, nogil=True)
 def _start(out: np.ndarray, tick_output: np.ndarray, state: np.ndarray) -> None:
-    """:func:`started` from the last tick's output (:data:`fuser.model.tick.TICK_OUTPUT`) and state record."""
+    """:func:`started` from the last tick's output (:data:`fuser.model.tick.TICK_OUTPUT`) and state record; not
+    ``active`` after a tick that kept an IMU out (which IMU is wrong is not known between ticks, so the state is not
+    turned by the reference IMU's gyro)."""
     o, s = tick_output[0], state[0]
+    if o.imu_fault:
+        out[0].active = False
+        return
     started(out, o.published_M, o.published_Z, o.has_lead_rotation, o.lead_rotation, s.gyro, s.bias.estimate_rad_s)
 
 

@@ -60,6 +60,7 @@ from core.bingham_kernels import rotated_right
 from core.normalization import _CONVERGED, MIN_MOMENT
 from core.quaternion_kernels import IDENTITY, from_rotvec
 from fuser.model import vec3
+from fuser.model.bias import correlation_s, variance_rad2_s2
 from fuser.model.tick import Motion, Prediction
 
 __all__ = ["integrate_gyro", "isotropic_noise", "noise_table", "predict", "rate_hz", "saturated"]
@@ -296,10 +297,7 @@ def predict(gyro: np.record, bias_params: np.record, attitude: np.record, bias: 
     ``omega' = (1 - 4 b) omega + b``, and ``Z`` is fitted to them from the
     rotated distribution's.
     """
-    correlation_s = bias_params.time_constant_s if bias_params.feedback_enabled else bias_params.correlation_without_feedback_s
-    c = bias.covariance_rad2_s2
-    bias_variance = (c[0, 0] + c[1, 1] + c[2, 2]) / 3.0  # fuser.model.bias.variance_rad2_s2
-    variance = gyro.noise_rad_s_rt_hz * gyro.noise_rad_s_rt_hz * dt_s + bias_variance * correlation_s * dt_s
+    variance = gyro.noise_rad_s_rt_hz * gyro.noise_rad_s_rt_hz * dt_s + variance_rad2_s2(bias) * correlation_s(bias_params) * dt_s
     gap = gyro.gap_rate_rad_s * motion.gap_s
     unknown = gyro.range_rad_s * motion.saturated_s
     variance += motion.closed_variance_rad2 + gap * gap + unknown * unknown

@@ -47,14 +47,12 @@ GNSS_INPUT = np.dtype([
 TICK_OUTPUT = np.dtype([
     ("published_M", "f8", (4, 4)),
     ("published_Z", "f8", (4,)),
-    ("uncertainty_deg", "f8"),
     ("has_lead_rotation", "?"),
-    ("lead_rotation", "f8", (4,)),
-    ("imu_fault", "?"),
-    ("diagnostics", "i8"),  # how many records of the diagnostics array the tick wrote
-    ("events", "i8"),  # how many (code, count) pairs of the events arrays
+    ("lead_rotation", "f8", (4,)),  # the body rotation the lead applied, which the output predictor takes back
+    ("imu_fault", "?"),  # an IMU kept out lately: the output predictor does not start from this tick
 ], align=True)
-"""What the compiled tick returns besides its diagnostics and events (:class:`TickResult`'s numbers)."""
+"""What the compiled tick leaves for the output predictor (:func:`fuser.model.output.started`): the published
+distribution, the lead, and whether an IMU was kept out."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -192,12 +190,6 @@ class TickResult(NamedTuple):
     """The model's event counters so far (gated readings, gaps, rest ticks, ...)."""
     ahead_ns: int = 0
     """``published`` is the attitude at the tick time plus this (ns): the estimate's stamp."""
-    lead_rotation: np.ndarray | None = None
-    """The body rotation ``published`` was carried by over the lead (None: not turned); the output predictor
-    (:mod:`fuser.model.output`) takes it back."""
-    imu_fault: bool = False
-    """An IMU was kept out within ``imu_check.compare_within_s``: which IMU is wrong is not known between ticks, so
-    the output predictor does not turn this state by the reference IMU."""
 
     @property
     def q_wxyz(self) -> np.ndarray:

@@ -115,15 +115,15 @@ from core.observations import _davenport
 from core.quaternion_kernels import from_array, rotation_rows
 from fuser.model import vec3
 from fuser.model.diagnostics import (AIDED_3D, AIDED_HORIZONTAL, FUSED, GAP, GATED, GRAVITY, INNOVATION, JUMP, NO_FIX, NO_REASON, NORM,
-                                     NOT_AIDED, STALE, UNCONVERGED, UNSELECTED, VELOCITY, Diagnostic, emit, none)
+                                     NOT_AIDED, STALE, UNCONVERGED, UNSELECTED, VELOCITY, Diagnostic, emit, none, of)
 from fuser.model.gate import innovation_gate
+from fuser.model.gravity import drop_lp, no_reading
 from fuser.model.tick import GravityReading, TickContext, VelocityTrack
 
-__all__ = ["VelocityTrack", "raw_world", "tilt_doubt_deg", "track_velocity", "update_gravity_aided"]
+__all__ = ["raw_world", "tilt_doubt_deg", "track_velocity", "update_gravity_aided"]
 
 FIX_2D = 2
 """MAVLink GPS_FIX_TYPE of the first fix that carries a velocity."""
-_ZERO = (0.0, 0.0, 0.0)
 
 
 @njit(cache=True, nogil=True)
@@ -155,10 +155,10 @@ def _force_at(state: np.record, knots_ns: np.ndarray, knots: np.ndarray, t_ns: i
     history: False (and zeros). The ring's knots in time order, bisected (``bisect_left``)."""
     count = state.knots_count
     if count == 0:
-        return False, _ZERO
+        return False, vec3.ZERO
     capacity, first = knots_ns.shape[0], state.knots_first
     if t_ns < knots_ns[first] or t_ns > knots_ns[(first + count - 1) % capacity]:
-        return False, _ZERO
+        return False, vec3.ZERO
     lo, hi = 0, count
     while lo < hi:
         mid = (lo + hi) // 2
@@ -183,7 +183,7 @@ def _knots(params: np.record, state: np.record, knots_ns: np.ndarray, knots: np.
     capacity = knots_ns.shape[0]
     count = 0 if broken else state.knots_count
     if count == 0:
-        fx, fy, fz = force_s_m_s2 if has_force else _ZERO
+        fx, fy, fz = force_s_m_s2 if has_force else vec3.ZERO
         step_s = dt_ns * 1e-9
         knots_ns[0], knots_ns[1] = tick_ns - dt_ns, tick_ns
         knots[0, 0], knots[0, 1], knots[0, 2], knots[0, 3], knots[0, 4], knots[0, 5] = 0.0, 0.0, 0.0, fx, fy, fz
@@ -265,7 +265,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         return VelocityTrack(False, False, 0.0, False, False), n_diag
     may_aid = gravity.tilt_known and not frame_broken and prior_tilt_doubt_deg < updates.converged_deg
     to_s = rotation_rows(from_array(gravity.q_strapdown))  # body -> S
-    force_s = vec3.mat_vec(to_s, accel_body_m_s2) if has_accel else _ZERO
+    force_s = vec3.mat_vec(to_s, accel_body_m_s2) if has_accel else vec3.ZERO
     _knots(params, state, knots_ns, knots, has_accel, force_s, tick_ns, dt_ns, frame_broken)
     g = gravity_params.gravity_m_s2
     max_age_ns = round(params.max_age_s * 1e9)
@@ -278,15 +278,10 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
     recent_var, recent_cov = state.recent_noise_var_m2_s4, state.recent_noise_cov_m2_s3
     nan = math.nan
 
-    def unchecked(reason: int) -> Diagnostic:
-        # a fix gated before its acceleration check (a closure, inlined: a compiled function called with each reason's
-        # constant would be compiled once per constant)
-        return Diagnostic(True, VELOCITY, GATED, reason, nan, nan, nan, NOT_AIDED, False, nan, nan, nan, False)
-
     for i in range(n_fixes):
         fix = fixes[i]
         if not fix.has_velocity or fix.fix_type < FIX_2D:
-            n_diag = emit(diagnostics, n_diag, unchecked(NO_FIX))
+            n_diag = emit(diagnostics, n_diag, of(VELOCITY, GATED, NO_FIX, nan, nan, nan, NOT_AIDED))
             continue
         slot = fix.slot
         measured = fix.placed_ns - round((params.filtered_latency_ms if fix.filtered else params.latency_ms) * 1e6)
@@ -295,14 +290,14 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         previous_ns, previous_noise = state.stream_measured_ns[slot], state.stream_noise_m_s[slot]
         v0x, v0y, v0z = state.stream_vel_ned_m_s[slot, 0], state.stream_vel_ned_m_s[slot, 1], state.stream_vel_ned_m_s[slot, 2]
         if seen and v1x == v0x and v1y == v0y and v1z == v0z and fix.vertical_velocity == previous_vertical:
-            n_diag = emit(diagnostics, n_diag, unchecked(STALE))
+            n_diag = emit(diagnostics, n_diag, of(VELOCITY, GATED, STALE, nan, nan, nan, NOT_AIDED))
             continue
         noise_m_s = fix.speed_accuracy_m_s if fix.has_speed_accuracy else params.velocity_noise_m_s
         state.stream_seen[slot], state.stream_measured_ns[slot] = True, measured
         state.stream_vel_ned_m_s[slot, 0], state.stream_vel_ned_m_s[slot, 1], state.stream_vel_ned_m_s[slot, 2] = v1x, v1y, v1z
         state.stream_vertical[slot], state.stream_noise_m_s[slot] = fix.vertical_velocity, noise_m_s
         if not seen or not 0 < measured - previous_ns <= max_age_ns:
-            n_diag = emit(diagnostics, n_diag, unchecked(GAP))
+            n_diag = emit(diagnostics, n_diag, of(VELOCITY, GATED, GAP, nan, nan, nan, NOT_AIDED))
             continue
         span_s = (measured - previous_ns) * 1e-9
         both_vertical = fix.vertical_velocity and previous_vertical
@@ -322,7 +317,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         has_start, start = _force_at(state, knots_ns, knots, previous_ns)
         has_end, end = _force_at(state, knots_ns, knots, measured)
         if not has_start or not has_end:
-            n_diag = emit(diagnostics, n_diag, unchecked(GAP))
+            n_diag = emit(diagnostics, n_diag, of(VELOCITY, GATED, GAP, nan, nan, nan, NOT_AIDED))
             continue
         force = ((end[0] - start[0]) / span_s, (end[1] - start[1]) / span_s, (end[2] - start[2]) / span_s)  # mean over the interval, in S
         # the jump check: against the accelerometer's acceleration, rotated by the estimate (S -> NED)
@@ -345,7 +340,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
             alpha = min(1.0, span_s / tau_s)
             if not has_lp:
                 alpha, noise_var, noise_cov = 1.0, 0.0, 0.0  # the low-pass starts from this pair: unbiased, its noise counted
-                has_lp, body_lp, world_lp = True, _ZERO, _ZERO
+                has_lp, body_lp, world_lp = True, vec3.ZERO, vec3.ZERO
             body_lp = vec3.toward(body_lp, (-force[0], -force[1], -force[2]), alpha)
             world_lp = vec3.toward(world_lp, gravity_less_accel, alpha)
             noise_var, noise_cov = _noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous_noise)
@@ -361,7 +356,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
     active = has_lp and has_last and tick_ns - last_fused_ns <= max_age_ns
     lost = not active and was_aiding
     if not active:
-        has_lp, body_lp, world_lp = False, _ZERO, _ZERO
+        has_lp, body_lp, world_lp = False, vec3.ZERO, vec3.ZERO
     # moving: a fix still fresh at this tick (measured within max_age_s plus its latency) is fast; a stream that stopped
     # in flight is not taken as moving for ever (the rest detector would never run again)
     fresh_ns = max_age_ns + round(max(params.latency_ms, params.filtered_latency_ms) * 1e6)
@@ -390,13 +385,13 @@ def raw_world(params: np.record, gravity_params: np.record, state: np.record, ti
     reading is the lift's direction, the bank's vertical; with the turn's acceleration taken out it is gravity's, to
     within the pairs' age times the turn rate (2 deg at 0.1 rad/s and 0.35 s)."""
     if not params.enabled or not state.has_recent:
-        return False, _ZERO, 0.0
+        return False, vec3.ZERO, 0.0
     if tick_ns - state.recent_ns > round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9):
-        return False, _ZERO, 0.0
+        return False, vec3.ZERO, 0.0
     noise_m_s2 = math.sqrt(max(state.recent_noise_var_m2_s4, 0.0))
     x, y, z = vec3.load(state.recent_world_m_s2)
     if vec3.norm((-x, -y, gravity_params.gravity_m_s2 - z)) <= 3.0 * noise_m_s2:  # |g e_z - (g e_z - a)|
-        return False, _ZERO, 0.0
+        return False, vec3.ZERO, 0.0
     return True, (x, y, z), noise_m_s2
 
 
@@ -419,18 +414,16 @@ def _vector_exponent(b: tuple, r: tuple, sigma: float) -> tuple:
 
 
 @njit(cache=True, nogil=True)
-def update_gravity_aided(params: np.record, gnss: np.record, updates: np.record, state: np.record, velocity: np.record,
+def update_gravity_aided(params: np.record, updates: np.record, state: np.record, velocity: np.record,
                          track: VelocityTrack, tick: TickContext, tau_s: float, predicted_q: tuple) -> GravityReading:
     """The gravity update while GNSS aids it: the low-passed body vector ``b`` measured as the world vector ``w``
     (module docstring), once per tick with a new pair; between pairs nothing is measured. The plain update's
     low-pass is dropped meanwhile, so that it starts again from the estimate if the aiding ends. ``state`` is the
     ``gravity`` record (changed in place), ``velocity`` the ``velocity`` record after this tick's
     :func:`track_velocity`, ``track`` what it returned; ``params`` the ``accel`` group."""
-    state.has_accel_lp, state.has_raw_mean, state.raw_s = False, False, 0.0  # the plain update's low-pass and raw mean dropped
-    vec3.store(state.accel_lp_m_s2, _ZERO)
-    vec3.store(state.raw_mean_m_s2, _ZERO)
+    drop_lp(state)  # the plain update's low-pass and raw mean
     if not velocity.has_lp:
-        return GravityReading(False, np.zeros((4, 4)), False, False, none(), False, 0.0, False)
+        return no_reading()
     body = vec3.vec_mat(vec3.load(velocity.body_lp_m_s2), rotation_rows(from_array(state.q_strapdown)))  # S -> body
     rotation = rotation_rows(predicted_q)  # body -> NED
     world = vec3.load(velocity.world_lp_m_s2)  # its vertical part g - a_v, or g without vertical velocity: free of the estimate
@@ -457,7 +450,7 @@ def update_gravity_aided(params: np.record, gnss: np.record, updates: np.record,
     aiding = AIDED_3D if velocity.vertical else AIDED_HORIZONTAL
     nan = math.nan
     if norm_error > params.norm_gate_fraction:
-        gated = Diagnostic(True, GRAVITY, GATED, NORM, nan, nan, nan, aiding, False, nan, nan, nan, False)
+        gated = of(GRAVITY, GATED, NORM, nan, nan, nan, aiding)
         return GravityReading(False, np.zeros((4, 4)), False, False, gated, False, 0.0, False)
     predicted_world = vec3.mat_vec(rotation, body)
     innovation = vec3.angle_rad(vec3.dot(predicted_world, world) / (body_norm * world_norm))
@@ -467,8 +460,7 @@ def update_gravity_aided(params: np.record, gnss: np.record, updates: np.record,
     sigma = math.sqrt(correction * correction + noise * noise * max(tau_s / interval, 1.0))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, interval)
     reason = INNOVATION if verdict.outcome == GATED else NO_REASON
-    diagnostic = Diagnostic(True, GRAVITY, verdict.outcome, reason, innovation, sigma, verdict.test_ratio, aiding, False, nan, nan, nan,
-                            False)
+    diagnostic = of(GRAVITY, verdict.outcome, reason, innovation, sigma, verdict.test_ratio, aiding)
     state.converged, state.tilt_known, state.gated_s = True, True, verdict.gated_s
     if verdict.outcome != GATED:
         present, exponent = _vector_exponent(measured_body, world, sigma)
