@@ -33,7 +33,6 @@ import re
 import signal
 import sys
 import threading
-import time
 import traceback
 from contextlib import ExitStack
 from functools import partial
@@ -527,19 +526,6 @@ def _warm_up(config: FuserConfig) -> None:
     log.debug("kernels ready in %.1f s", warm_up(config, notice))
 
 
-BACKLOG_MAX_S = 1.0
-"""Longest :func:`_discard_backlog` reads (a flooding source never runs dry)."""
-
-
-def _discard_backlog(sources: dict[str, Any]) -> None:
-    """Drop what the open sources queued during the warm-up (up to its length old, it would reach the loop stamped
-    as just received), counting it in each source's ``stats`` as ``warm_up_discarded``."""
-    deadline = time.monotonic() + BACKLOG_MAX_S
-    for source in sources.values():
-        while time.monotonic() < deadline and (stale := source.poll(0.0)):
-            source.stats["warm_up_discarded"] += len(stale)
-
-
 def _estimate_sinks(pub: Any, rec: Any) -> list:
     """Where each estimate goes: zenoh first, so a subscriber never waits for the recorder's
     serialisation (measured: +0.1 ms on the publish latency the other way round), then MCAP."""
@@ -598,11 +584,10 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
             return out | extra.health_status()
 
         _warm_up(config)  # after everything has opened: an input or output that cannot is reported at once
-        _discard_backlog(sources)
         runner = LiveRunner(pipeline, sources, status_sinks, health, clock)
         _stop_on_signal(runner.stop)
-        print(f"run: fusing {', '.join(sources)} at {config.rate_hz:g} Hz; Ctrl-C to stop", file=sys.stderr, flush=True)
-        status = runner.run(args.duration)
+        status = runner.run(args.duration, lambda: print(f"run: fusing {', '.join(sources)} at {config.rate_hz:g} Hz; Ctrl-C to stop",
+                                                         file=sys.stderr, flush=True))
     print(f"run: {status['estimates']} estimates; loop {status['loop']}; latency {status['latency']}")
     _print_inputs(source_report(name, src) for name, src in sources.items())
     return 0

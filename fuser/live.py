@@ -16,6 +16,7 @@ import gc
 import logging
 import queue
 import threading
+import time
 from collections import Counter, deque
 from typing import Callable, Iterable
 
@@ -101,6 +102,23 @@ def _warm_up(pipeline: Pipeline) -> None:
         model.step(TickInput(t, 10_000_000, [*imu, AttitudeSample(t, (1.0, 0.0, 0.0, 0.0), src)]))
 
 
+BACKLOG_MAX_S = 1.0
+"""Longest :func:`discard_backlog` reads (a flooding source never runs dry)."""
+
+
+def discard_backlog(sources: dict[str, SampleSource]) -> None:
+    """Drop what the open sources queued before the run started (``run``'s warm-up: up to its length old, it would
+    reach the loop stamped as just received), counting it in each source's ``stats`` as ``warm_up_discarded``; a
+    source whose poll fails is left to its reader thread, which counts and reports that."""
+    deadline = time.monotonic() + BACKLOG_MAX_S
+    for source in sources.values():
+        try:
+            while time.monotonic() < deadline and (stale := source.poll(0.0)):
+                source.stats["warm_up_discarded"] += len(stale)
+        except Exception:  # noqa: BLE001 - a driver's poll may raise anything; its reader thread handles it
+            continue
+
+
 class LiveRunner:
     """Runs a pipeline on live sources until ``stop()`` or ``duration_s``, on ``clock`` (default: measured now)."""
 
@@ -162,13 +180,18 @@ class LiveRunner:
         except queue.Empty:
             pass
 
-    def run(self, duration_s: float | None = None) -> dict:
-        """Run until stopped (or for ``duration_s``); returns the final status."""
+    def run(self, duration_s: float | None = None, on_start: Callable[[], None] | None = None) -> dict:
+        """Run until stopped (or for ``duration_s``); returns the final status. ``on_start`` is called once the
+        sources are read (what they queued before is dropped, :func:`discard_backlog`): a sample sent after it is
+        fused."""
         _warm_up(self.pipeline)
         gc.collect()
         gc.freeze()  # start-up built ~170k long-lived objects (modules, kernels): a full collection over them takes ~80 ms
+        discard_backlog(self.sources)
         for t in self._threads:
             t.start()
+        if on_start is not None:
+            on_start()
         start = self.clock.now_ns()
         next_status = start + 1_000_000_000
         try:

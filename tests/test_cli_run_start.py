@@ -1,4 +1,5 @@
-"""How ``run`` starts: inputs and outputs open before the filter compiles, and what queued meanwhile is dropped.
+"""How ``run`` starts: inputs and outputs open before the filter compiles, and what queued meanwhile is dropped
+(:func:`fuser.live.discard_backlog`, just before the live loop's reader threads start).
 
 On the first run after installing, the warm-up (fuser/warmup.py) compiles the filter for about 30 s. A source
 that cannot open must be reported at once, not after that; and the samples a source queued during the warm-up
@@ -11,6 +12,7 @@ import socket
 from collections import Counter
 
 import fuser.cli as cli
+import fuser.live as live
 import fuser.warmup as warmup
 from drivers.samples import ImuSample, SourceId
 from local_net import free_port
@@ -41,16 +43,16 @@ class FloodingSource(QueuedSource):
 
 def test_what_queued_during_the_warm_up_is_dropped_and_counted():
     a, b = QueuedSource([3, 5]), QueuedSource([])
-    cli._discard_backlog({"a": a, "b": b})
+    live.discard_backlog({"a": a, "b": b})
     assert a.stats["warm_up_discarded"] == 8 and not a.batches  # every queued batch, read without waiting
     assert b.stats["warm_up_discarded"] == 0
     assert set(a.timeouts + b.timeouts) == {0.0}
 
 
 def test_a_flooding_source_does_not_hold_the_start(monkeypatch):
-    monkeypatch.setattr(cli, "BACKLOG_MAX_S", 0.05)
+    monkeypatch.setattr(live, "BACKLOG_MAX_S", 0.05)
     flood = FloodingSource([])
-    cli._discard_backlog({"flood": flood})  # returns: bounded by the time, not by the source running dry
+    live.discard_backlog({"flood": flood})  # returns: bounded by the time, not by the source running dry
     assert flood.stats["warm_up_discarded"] >= 10
 
 
@@ -64,7 +66,7 @@ def test_a_source_that_cannot_open_is_reported_before_the_filter_compiles(monkey
 
 
 def test_a_run_that_opens_warms_up_then_fuses(monkeypatch, capsys):
-    """The other order's check: with a source that opens, the warm-up runs (once) before the loop starts."""
+    """With a source that opens, the run warms up once and fuses to the end."""
     warmed: list[object] = []
     real = warmup.warm_up
     monkeypatch.setattr(warmup, "warm_up", lambda config, notice=None: warmed.append(config) or real(config, notice))
