@@ -64,13 +64,14 @@ from drivers.mavlink_encode import MavlinkEncoder  # noqa: E402
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, Sample  # noqa: E402
 from drivers.sim import SimConfig, simulate  # noqa: E402
 from fuser.codec import Estimate, decode_sample, dumps, loads, sample_json  # noqa: E402
-from fuser.config import FuserConfig, ZenohSettings, load_config  # noqa: E402
+from fuser.config import FuserConfig, ZenohSettings  # noqa: E402
 from fuser.pipeline import Pipeline  # noqa: E402
 from fuser.record import INPUT_TOPICS, McapRecorder, RawMessage, pose_in_frame, read_log  # noqa: E402
 from fuser.replay import replay  # noqa: E402
 from fuser.simulate import run_sim  # noqa: E402
 
 from bench_tick import TICK_TARGET_US, baseline_tree, captured_ticks, run_ticks  # noqa: E402
+from bench_tick import config_for as log_config  # noqa: E402
 
 REPLAY_TARGET = 20_000.0
 LATENCY_P99_TARGET_MS = {100.0: 1.0, 400.0: 2.0}
@@ -99,10 +100,9 @@ TICKS_ONLY_ENV = "BENCH_TICKS_ONLY"
 
 
 def config_for(log: Path) -> FuserConfig:
-    """The settings a log is replayed with: the .toml beside it (an imported log's earth field), else the defaults;
-    with ``--ticks-only``, the output predictor off (``[fuser.extrapolation] every_imu_sample = false``)."""
-    toml = log.with_suffix(".toml")
-    config = load_config(toml if toml.exists() else None)
+    """The settings a log is replayed with (:func:`bench_tick.config_for`); with ``--ticks-only``, the output
+    predictor off (``[fuser.extrapolation] every_imu_sample = false``)."""
+    config = log_config(log)
     return config.replace(extrapolation={"every_imu_sample": False}) if os.environ.get(TICKS_ONLY_ENV) else config
 
 

@@ -28,6 +28,7 @@ from core import quaternion as quat  # noqa: E402
 from fuser.config import FuserConfig  # noqa: E402
 from fuser.importers import broad_quat_from_ned  # noqa: E402
 from fuser.pipeline import Pipeline  # noqa: E402
+from fuser.replay import MAX_CATCH_UP_TICKS  # noqa: E402
 from loto import FS_HZ, load_trial  # noqa: E402
 
 DOWN = np.array([0.0, 0.0, 1.0])
@@ -40,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as work:
         trial = load_trial(args.trial, Path(work))
-    pipeline = Pipeline(FuserConfig().replace(mag={"field_ned_gauss": trial.field_ned_gauss}), max_catch_up_ticks=1000)
+    pipeline = Pipeline(FuserConfig().replace(mag={"field_ned_gauss": trial.field_ned_gauss}), max_catch_up_ticks=MAX_CATCH_UP_TICKS)
     model, estimates, bias = pipeline.loop.model, [], {}
     step = model.step
 

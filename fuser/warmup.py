@@ -1,4 +1,4 @@
-"""Compile the filter's kernels before a live clock starts.
+"""Compile the filter's kernels before a live loop starts.
 
 numba compiles each kernel on its first call (``cache=True``: on disk after
 that). In a live run that first call would land in the first ticks: on a

@@ -61,6 +61,16 @@ def part(name: str, config: FuserConfig | None = None, state: FilterState | None
     return set_fields(getattr(state, name), **fields)
 
 
+def gyro_part(**track: Any) -> np.record:
+    """The state's gyro part (:data:`fuser.model.state.GYRO`) with a track of the fields ``track`` (none if empty: no
+    gyro sample yet)."""
+    gyro = part("gyro")
+    if track:
+        set_fields(gyro.track, **track)
+        gyro.has_track = True
+    return gyro
+
+
 def update_diagnostic(diagnostic: Diagnostic) -> UpdateDiagnostic | None:
     """The :class:`~fuser.model.diagnostics.UpdateDiagnostic` (degrees, names) of a compiled update's
     :class:`~fuser.model.diagnostics.Diagnostic` (radians, codes), as the model reports it: written into a record as the

@@ -11,17 +11,8 @@ from fuser.config import ExtrapolationSettings, FuserConfig, GyroSettings
 from fuser.loop import FusionLoop
 from fuser.model.extrapolation import ahead_ns, carry_ns, lead
 from fusion_inputs import FIELD, GRAVITY_M_S2, SRC
-from model_records import params, part, set_fields
+from model_records import gyro_part, params
 from motion_inputs import truth_at, turning
-
-
-def _gyro(**track) -> np.record:
-    """The state's gyro part (:data:`fuser.model.state.GYRO`) with a track of the fields ``track``; none if empty."""
-    gyro = part("gyro")
-    if track:
-        set_fields(gyro.track, **track)
-        gyro.has_track = True
-    return gyro
 
 
 def test_how_far_ahead_from_the_settings():
@@ -36,7 +27,7 @@ def test_the_lead_holds_the_last_rate_with_the_held_rates_error():
     """Hand-worked: a sample 2 ms before the tick, carried 10 ms: turned by (rate - bias) 10 ms, variance
     s^2 ((a + L)^3 - a^3) / 3 with a = 2 ms, L = 10 ms."""
     gyro = params(FuserConfig(gyro=GyroSettings(rate_walk_rad_s_rt_s=0.3))).gyro
-    track = _gyro(last_ns=98_000_000, last_rate_rad_s=(0.5, -0.2, 1.0), covered_ns=100_000_000, held_rad=(0.0, 0.0, 0.0))
+    track = gyro_part(last_ns=98_000_000, last_rate_rad_s=(0.5, -0.2, 1.0), covered_ns=100_000_000, held_rad=(0.0, 0.0, 0.0))
     bias = (0.1, 0.0, 0.0)
     out = lead(gyro, track, bias, 100_000_000, 10_000_000)
     assert out.has_rotation
@@ -46,13 +37,13 @@ def test_the_lead_holds_the_last_rate_with_the_held_rates_error():
 
 def test_a_hold_that_runs_out_within_the_lead_grows_as_a_gap():
     gyro = params(FuserConfig(gyro=GyroSettings(max_interval_s=0.6, gap_rate_rad_s=1.0, rate_walk_rad_s_rt_s=0.0))).gyro
-    track = _gyro(last_ns=0, last_rate_rad_s=(0.0, 0.0, 2.0), covered_ns=595_000_000, held_rad=(0.0, 0.0, 1.19))
+    track = gyro_part(last_ns=0, last_rate_rad_s=(0.0, 0.0, 2.0), covered_ns=595_000_000, held_rad=(0.0, 0.0, 1.19))
     zero = (0.0, 0.0, 0.0)
     out = lead(gyro, track, zero, 595_000_000, 10_000_000)  # 5 ms more hold, then 5 ms of gap
     assert out.has_rotation
     np.testing.assert_allclose(out.rotation, quat.from_rotvec([0.0, 0.0, 2.0 * 0.005]), atol=1e-15)
     assert out.variance_rad2 == pytest.approx((1.0 * 0.005) ** 2, rel=1e-12)
-    assert lead(gyro, _gyro(), zero, 0, 10_000_000).variance_rad2 == pytest.approx(1e-4)  # no gyro at all
+    assert lead(gyro, gyro_part(), zero, 0, 10_000_000).variance_rad2 == pytest.approx(1e-4)  # no gyro at all
     not_carried = lead(gyro, track, zero, 595_000_000, 0)
     assert not not_carried.has_rotation and not_carried.rotation == (1.0, 0.0, 0.0, 0.0)  # not turned: the identity
 
@@ -64,10 +55,10 @@ def test_no_rotation_without_a_held_rate():
     zero, identity = (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0)
     rate = dict(last_rate_rad_s=(0.0, 0.0, 2.0), held_rad=(0.0, 0.0, 0.0))
     cases = {
-        "no gyro": (_gyro(), 1e-4),
-        "saturated": (_gyro(last_ns=0, covered_ns=10_000_000, saturated=True, **rate), (30.0 * 0.01) ** 2),
-        "hold ran out": (_gyro(last_ns=-50_000_000, covered_ns=10_000_000, **rate), (1.0 * 0.01) ** 2),
-        "zero rate": (_gyro(last_ns=0, covered_ns=10_000_000, last_rate_rad_s=(0.1, 0.0, 0.0), held_rad=zero),
+        "no gyro": (gyro_part(), 1e-4),
+        "saturated": (gyro_part(last_ns=0, covered_ns=10_000_000, saturated=True, **rate), (30.0 * 0.01) ** 2),
+        "hold ran out": (gyro_part(last_ns=-50_000_000, covered_ns=10_000_000, **rate), (1.0 * 0.01) ** 2),
+        "zero rate": (gyro_part(last_ns=0, covered_ns=10_000_000, last_rate_rad_s=(0.1, 0.0, 0.0), held_rad=zero),
                       0.25 * (0.02**3 - 0.01**3) / 3.0),
     }
     for name, (track, variance) in cases.items():

@@ -25,7 +25,7 @@ from fuser.model.output import OUTPUT, advanced, at, started
 from fuser.model.tick import TickInput
 from fuser.pipeline import Pipeline
 from fuser.record import read_log
-from model_records import params, part, set_fields
+from model_records import gyro_part, params
 
 LOGS = Path(__file__).resolve().parents[1] / "logs"
 BROAD_CUT = LOGS / "broad_02_slow_rotation_cut.mcap"
@@ -46,16 +46,6 @@ def _turn(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
     r_from = Rotation.from_quat(np.roll(q_from, -1))
     r_to = Rotation.from_quat(np.roll(q_to, -1))
     return (r_from.inv() * r_to).as_rotvec()
-
-
-def _gyro(**track) -> np.record:
-    """The state's gyro part (:data:`fuser.model.state.GYRO`) after a tick, its track of the fields ``track``; no
-    track (no gyro sample yet) if empty."""
-    gyro = part("gyro")
-    if track:
-        set_fields(gyro.track, **track)
-        gyro.has_track = True
-    return gyro
 
 
 def _started(published: Bingham, lead_rotation: np.ndarray | None, gyro: np.record, bias_rad_s: np.ndarray) -> np.ndarray:
@@ -80,7 +70,7 @@ def test_a_linearly_changing_rate_turns_by_its_integral_and_the_tick_hold_is_tak
     a, b = 2.0, 30.0
     rate = lambda t_s: (a + b * t_s, 0.0, 0.0)  # noqa: E731
     held = (rate(0.008)[0] * 0.002, 0.0, 0.0)
-    track = _gyro(last_ns=8 * MS, last_rate_rad_s=rate(0.008), covered_ns=10 * MS, held_rad=held)
+    track = gyro_part(last_ns=8 * MS, last_rate_rad_s=rate(0.008), covered_ns=10 * MS, held_rad=held)
     bias = np.array([0.1, 0.0, 0.0])
     state = _started(_base(), None, track, bias)
     for t_ms in (12, 14, 16):
@@ -100,7 +90,7 @@ def test_a_linearly_changing_rate_turns_by_its_integral_and_the_tick_hold_is_tak
 
 def test_the_lead_is_taken_back():
     lead = quat.from_rotvec(np.array([0.0, 0.02, -0.01]))
-    track = _gyro(last_ns=10 * MS, last_rate_rad_s=(0.0, 0.0, 0.0), covered_ns=10 * MS, held_rad=(0.0, 0.0, 0.0))
+    track = gyro_part(last_ns=10 * MS, last_rate_rad_s=(0.0, 0.0, 0.0), covered_ns=10 * MS, held_rad=(0.0, 0.0, 0.0))
     state = _started(_base().rotate_right(lead), lead, track, np.zeros(3))
     assert state[0]["active"]
     assert quat.angular_distance(Bingham(state[0]["base_M"].copy(), state[0]["base_Z"].copy()).mode, _base().mode) < 1e-12
@@ -111,7 +101,7 @@ def test_a_gap_or_a_saturated_sample_ends_the_prediction_and_an_old_sample_chang
     end leaves the predictor's bytes as they were (it was the same state) and is its end only if it is its last sample
     (the loop's ``last_ns == placed_ns``)."""
     track = dict(last_ns=10 * MS, last_rate_rad_s=(0.1, 0.0, 0.0), covered_ns=10 * MS, held_rad=(0.0, 0.0, 0.0))
-    fresh = lambda: _started(_base(), None, _gyro(**track), np.zeros(3))  # noqa: E731
+    fresh = lambda: _started(_base(), None, gyro_part(**track), np.zeros(3))  # noqa: E731
     state = fresh()
     assert state[0]["active"]
     assert not advanced(GYRO, state, (0.1, 0.0, 0.0), 10 * MS + round(MAX_INTERVAL_S * 1e9) + 1) and not state[0]["active"]
@@ -122,8 +112,8 @@ def test_a_gap_or_a_saturated_sample_ends_the_prediction_and_an_old_sample_chang
     assert not advanced(GYRO, state, (5.0, 0.0, 0.0), 9 * MS)
     assert state.tobytes() == before
     assert advanced(GYRO, state, (5.0, 0.0, 0.0), 10 * MS) and state.tobytes() == before  # the tick's last sample again
-    assert not _started(_base(), None, _gyro(**track, saturated=True), np.zeros(3))[0]["active"]
-    assert not _started(_base(), None, _gyro(), np.zeros(3))[0]["active"]
+    assert not _started(_base(), None, gyro_part(**track, saturated=True), np.zeros(3))[0]["active"]
+    assert not _started(_base(), None, gyro_part(), np.zeros(3))[0]["active"]
     stopped = fresh()
     stopped[0]["active"] = False
     assert not advanced(GYRO, stopped, (0.1, 0.0, 0.0), 12 * MS)  # waiting for the next tick: nothing turns it
