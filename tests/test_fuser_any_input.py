@@ -8,6 +8,9 @@ property test feeds the loop such streams: a zero specific force (free fall), a 
 instant, a gyro at full scale, a fix without velocity, a GNSS stream that appears late, two IMUs. Every estimate
 must then have a finite, orthonormal M, concentrations <= 0 and a finite uncertainty; the quality bar's "no NaN,
 overflow or exception for any valid input".
+
+The examples come from the suite's hypothesis profile (tests/conftest.py): 100 fixed ones in every run, or a
+fresh random search with ``--hypothesis-profile search``.
 """
 
 from __future__ import annotations
@@ -103,7 +106,7 @@ CONFIGS = {
 }
 
 
-@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@settings(deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
 @given(stream=streams(), config=st.sampled_from(sorted(CONFIGS)), rate_hz=st.sampled_from([50.0, 100.0, 400.0]))
 def test_any_stream_the_drivers_pass_is_fused_into_valid_estimates(stream, config, rate_hz):
     loop = FusionLoop(FuserConfig(rate_hz=rate_hz).replace(**CONFIGS[config]))
