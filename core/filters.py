@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from core import quaternion as quat
 from core.bingham import Bingham, composition_inertia
+from core.bingham_kernels import rms_angle_deg as moments_rms_angle_deg
 from core.normalization import Method
 from core.rss import rss_samples
 
@@ -160,6 +161,6 @@ class BinghamFilter:
 
 
 def rms_angle_deg(state: Bingham, method: Method = "saddlepoint") -> float:
-    """``2 asin(sqrt(E[sin^2(theta/2)]))`` in degrees for ``theta`` the angle to the mode."""
-    dispersion = min(max(1.0 - float(state.moments(method)[-1]), 0.0), 1.0)
-    return math.degrees(2.0 * math.asin(math.sqrt(dispersion)))
+    """``2 asin(sqrt(E[sin^2(theta/2)]))`` in degrees for ``theta`` the angle to the mode
+    (:func:`core.bingham_kernels.rms_angle_deg` of the state's moments)."""
+    return float(moments_rms_angle_deg(np.ascontiguousarray(state.moments(method), dtype=np.float64)))

@@ -217,15 +217,14 @@ def test_with_model_error_is_the_widened_bingham(seed):
 
 @pytest.mark.parametrize("seed", range(10))
 def test_mode_and_rms_angle_are_the_binghams(seed):
-    """The compiled tick's mode (``w >= 0``) and RMS angle from the moments, against :attr:`Bingham.mode` and
-    :func:`core.filters.rms_angle_deg`; either sign of the mode's column gives the same attitude."""
+    """The compiled tick's mode (``w >= 0``) against :attr:`Bingham.mode`, either sign of the mode's column giving
+    the same attitude; its RMS angle at the closed forms of the uniform and the point mass."""
     rng = np.random.default_rng(seed)
     state = random_state(rng, 10.0 ** rng.uniform(-2, 9))
     for M in (state.M, state.M * np.array([1.0, 1.0, 1.0, -1.0])):
         q = kernels.mode(np.ascontiguousarray(M))
         assert isinstance(q, tuple) and q[0] >= 0.0
         np.testing.assert_array_equal(q, state.mode)
-    assert kernels.rms_angle_deg(state.moments("saddlepoint")) == pytest.approx(rms_angle_deg(state, "saddlepoint"), rel=1e-15)
     assert kernels.rms_angle_deg(np.array([0.25, 0.25, 0.25, 0.25])) == pytest.approx(120.0)  # uniform: 2 asin(sqrt(3/4))
     assert kernels.rms_angle_deg(np.array([0.0, 0.0, 0.0, 1.0])) == 0.0
 
@@ -273,3 +272,19 @@ def test_davenport_and_heading_exponents_match_the_numpy_forms(seed):
 def test_davenport_refuses_what_is_not_a_direction(bad):
     with pytest.raises(ValueError):
         vector_exponent(bad, np.array([0.0, 0.0, 1.0]), 0.1)
+
+
+@pytest.mark.parametrize("z", [0.5, 5.0, 50.0, 2_000.0])
+def test_rms_angle_is_the_monte_carlo_rms_angle(z):
+    """:func:`core.filters.rms_angle_deg` (the compiled kernel on the moments) against the RMS of
+    ``sin(theta/2)`` over 200,000 exact draws of the Bingham, ``theta`` each draw's angle to the mode:
+    ``sin^2(theta/2) = 1 - (x . mode)^2`` (the draws' standard error is about 0.1 % of the angle). With the exact
+    moments within 0.2 %; with the saddlepoint's, which the tick uses, within 1 % (measured: 0.04-0.75 %)."""
+    rng = np.random.default_rng(7)
+    state = Bingham(random_rotation(rng), np.array([-z, -0.6 * z, -0.2 * z, 0.0]))
+    draws = state.sample(200_000, rng)
+    mean_sin_sq = float(np.mean(1.0 - (draws @ state.M[:, 3]) ** 2))
+    monte_carlo = math.degrees(2.0 * math.asin(math.sqrt(mean_sin_sq)))
+    assert rms_angle_deg(state, "exact") == pytest.approx(monte_carlo, rel=0.002)
+    assert rms_angle_deg(state) == pytest.approx(monte_carlo, rel=0.01)
+

@@ -234,15 +234,6 @@ ODD_PI = [k * math.pi for k in (-7, -5, -3, -1, 1, 3, 5, 7)]
 NEAR_PI = [math.nextafter(x, 0.0) for x in ODD_PI] + [math.nextafter(x, 2 * x) for x in ODD_PI]
 
 
-@pytest.mark.parametrize("x", ODD_PI + NEAR_PI)
-def test_wrapped_pi_at_half_turns_is_the_same_angle(x):
-    """At and beside the odd multiples of pi, the two choices -pi and pi are one angle: congruent to the
-    remainder modulo 2 pi and no more than an ulp outside [-pi, pi]."""
-    wrapped, remainder = vec3.wrapped_pi(x), math.remainder(x, TWO_PI)
-    assert min(abs(wrapped - remainder), abs(abs(wrapped - remainder) - TWO_PI)) <= 4 * math.ulp(math.pi)
-    assert -math.pi - math.ulp(math.pi) <= wrapped <= math.pi
-
-
 def test_wrapped_pi_is_math_remainder_at_half_turns():
     """The docstring's claim at the boundary: ``math.remainder(x, 2 pi)`` exactly, in [-pi, pi]."""
     differing = [(x, vec3.wrapped_pi(x), math.remainder(x, TWO_PI)) for x in ODD_PI + NEAR_PI
