@@ -33,6 +33,8 @@ import math
 import numpy as np
 from numba import njit
 
+from core import quaternion_kernels as qk
+
 __all__ = ["down_alignment_sq", "mode", "product_parameters", "rms_angle_deg", "rotated_left", "rotated_right", "sorted_concentrations",
            "symmetric_eigh"]
 
@@ -142,28 +144,18 @@ def product_parameters(M: np.ndarray, Z: np.ndarray, C: np.ndarray) -> tuple:
 @njit(cache=True, nogil=True)
 def rotated_right(u: np.ndarray, M: np.ndarray) -> np.ndarray:
     """``R(u) M``: the principal directions of ``x (x) u`` (QBF paper, sec. 5), ``R(u) p = p (x) u``."""
-    w, x, y, z = u[0], u[1], u[2], u[3]
     out = np.empty((4, 4))
     for j in range(4):
-        pw, px, py, pz = M[0, j], M[1, j], M[2, j], M[3, j]
-        out[0, j] = pw * w - px * x - py * y - pz * z
-        out[1, j] = pw * x + px * w + py * z - pz * y
-        out[2, j] = pw * y - px * z + py * w + pz * x
-        out[3, j] = pw * z + px * y - py * x + pz * w
+        out[0, j], out[1, j], out[2, j], out[3, j] = qk.multiply((M[0, j], M[1, j], M[2, j], M[3, j]), (u[0], u[1], u[2], u[3]))
     return out
 
 
 @njit(cache=True, nogil=True)
 def rotated_left(u: np.ndarray, M: np.ndarray) -> np.ndarray:
     """``L(u) M``: the principal directions of ``u (x) x`` (QBF paper, sec. 5), ``L(u) p = u (x) p``."""
-    w, x, y, z = u[0], u[1], u[2], u[3]
     out = np.empty((4, 4))
     for j in range(4):
-        pw, px, py, pz = M[0, j], M[1, j], M[2, j], M[3, j]
-        out[0, j] = w * pw - x * px - y * py - z * pz
-        out[1, j] = w * px + x * pw + y * pz - z * py
-        out[2, j] = w * py - x * pz + y * pw + z * px
-        out[3, j] = w * pz + x * py - y * px + z * pw
+        out[0, j], out[1, j], out[2, j], out[3, j] = qk.multiply((u[0], u[1], u[2], u[3]), (M[0, j], M[1, j], M[2, j], M[3, j]))
     return out
 
 
