@@ -8,7 +8,7 @@ failure behind hypothesis's "inconsistent data generation" (seen once in CI on t
 
 ``search`` draws fresh random examples, shrinks what fails and explains it, for a wider search run by hand:
 
-    python -m pytest -n 0 -p no:timeout --hypothesis-profile search tests/test_fuser_any_input.py
+    python -m pytest -n 0 --timeout 0 --hypothesis-profile search tests/test_fuser_any_input.py
 
 (or ``--hypothesis-seed N`` with it, to repeat one search). Tests that set ``max_examples`` keep their own
 count in both profiles; ``search`` multiplies the others' by ten.
