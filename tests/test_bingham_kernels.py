@@ -287,4 +287,3 @@ def test_rms_angle_is_the_monte_carlo_rms_angle(z):
     monte_carlo = math.degrees(2.0 * math.asin(math.sqrt(mean_sin_sq)))
     assert rms_angle_deg(state, "exact") == pytest.approx(monte_carlo, rel=0.002)
     assert rms_angle_deg(state) == pytest.approx(monte_carlo, rel=0.01)
-
