@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import struct
 from typing import Any
 
 from .euler import euler_from_quaternion
@@ -29,6 +30,13 @@ GNSS_MESSAGES = ("GPS_RAW_INT", "GLOBAL_POSITION_INT", "GPS_INPUT", "HIL_GPS")
 HEARTBEAT_PERIOD_NS = 1_000_000_000
 """An autopilot sends HEARTBEAT at 1 Hz."""
 _INT16 = 32767
+MESSAGES_OF = {ImuSample: IMU_MESSAGES, AttitudeSample: ATTITUDE_MESSAGES, GnssSample: GNSS_MESSAGES}
+"""The messages :meth:`MavlinkEncoder.encode` writes, by sample type."""
+
+
+class UnencodableSample(ValueError):
+    """A sample with a value its message has no field for: a time before 0 or beyond the field's integer, a
+    NaN or infinite value where the message holds an integer (a damaged log's record, say)."""
 
 
 def _milli(v: Vec3 | None, scale: float) -> tuple[int, int, int]:
@@ -63,12 +71,25 @@ class MavlinkEncoder:
 
     def encode(self, sample: Sample, message: str | None = None) -> bytes:
         """Frame of ``sample`` as ``message`` (default HIGHRES_IMU for IMU, ATTITUDE_QUATERNION for attitude),
-        after a HEARTBEAT when one is due."""
-        data = b""
-        if self._heartbeat is not None and (self._next_heartbeat_ns is None or sample.t_ns >= self._next_heartbeat_ns):
-            data = self._pack(self._heartbeat)
-            self._next_heartbeat_ns = sample.t_ns + HEARTBEAT_PERIOD_NS
-        return data + self._pack(self.message(sample, message))
+        after a HEARTBEAT when one is due.
+
+        Raises :class:`UnencodableSample` for a sample the message cannot hold (nothing is sent, the sequence
+        and the HEARTBEAT schedule stay as they were), ValueError for a message that is not one of the sample's
+        (:data:`MESSAGES_OF`).
+        """
+        if message is not None and message not in MESSAGES_OF.get(type(sample), ()):
+            raise ValueError(f"{message!r} is not a message for {type(sample).__name__}: {MESSAGES_OF.get(type(sample), ())}")
+        seq, next_heartbeat_ns = self.mav.seq, self._next_heartbeat_ns
+        try:
+            msg = self.message(sample, message)
+            data = b""
+            if self._heartbeat is not None and (self._next_heartbeat_ns is None or sample.t_ns >= self._next_heartbeat_ns):
+                data = self._pack(self._heartbeat)
+                self._next_heartbeat_ns = sample.t_ns + HEARTBEAT_PERIOD_NS
+            return data + self._pack(msg)
+        except (struct.error, OverflowError, ValueError) as e:  # an integer field's range; round() of NaN or infinity
+            self.mav.seq, self._next_heartbeat_ns = seq, next_heartbeat_ns
+            raise UnencodableSample(f"{type(sample).__name__} at {sample.t_ns} ns does not fit {message or 'its message'}: {e}") from e
 
     def _pack(self, msg: Any) -> bytes:
         data = bytes(msg.pack(self.mav))

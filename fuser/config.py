@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
 
 from drivers.link import LinkSettings
+from drivers.validation import MAG_MAX_GAUSS
 from fuser.mavlink_out import MavlinkOutSettings
 from fuser.ros2 import Ros2Settings
 
@@ -359,8 +360,9 @@ class MagSettings(Settings):
     def _validate(self) -> None:
         for key in ("field_ned_gauss", "fallback_field_ned_gauss"):
             value = getattr(self, key)
-            if value is not None and math.hypot(*value) == 0.0:
-                raise ValueError(f"{self.section}.{key} must not be zero, got {list(value)!r}")
+            if value is not None and not 0.0 < math.hypot(*value) <= MAG_MAX_GAUSS:  # NaN fails too
+                raise ValueError(f"{self.section}.{key} must be a field a magnetometer reads (norm above 0 and at most "
+                                 f"{MAG_MAX_GAUSS:g} gauss, the drivers' range; the Earth's is 0.22-0.67), got {list(value)!r}")
 
     @property
     def field_source(self) -> Literal["config", "wmm"]:

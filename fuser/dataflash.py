@@ -40,7 +40,10 @@ LogStructure.h give them; DFReader applies the format characters' scale
   DFReader and counted; a record whose layout lacks a field the import
   needs (the earliest GPS layout has no boot time ``T``) is counted as
   ``unreadable_<name>``; a GPS layout without ``VZ`` gives no vertical
-  velocity.
+  velocity. A record whose time is not a time since boot
+  (``drivers.timebase.MAX_TIME_NS``: a damaged one) is counted as
+  ``time_out_of_range_<name>``, and a value MAVLink cannot carry as
+  ``out_of_range_<message>`` (:func:`fuser.importers.write_mcap`).
 
 The result is a :class:`fuser.importers.SensorData`, written to MCAP by
 :func:`fuser.importers.write_mcap` exactly as a PX4 log is: every sample
@@ -61,8 +64,9 @@ import numpy as np
 
 from drivers.euler import quaternion_from_euler
 from drivers.samples import GnssSample
+from drivers.timebase import MAX_TIME_NS
 
-from .importers import MAVLINK_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest
+from .importers import DEFAULT_FIELD_NED_GAUSS, MAVLINK_SOURCE, NO_FIELD_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest
 
 __all__ = ["read_dataflash"]
 
@@ -172,6 +176,9 @@ def _add_record(rows: dict[str, list], skipped: Counter, name: str, d: dict) -> 
     """File one IMU, MAG, GPS, GPA or ATT record under its stream (imu0, mag1, gps, gpa, att).
     A field missing from the record's layout raises KeyError (counted by the caller)."""
     t = _time_ns(d, name)  # the earliest GPS layouts have no boot time (no T): unreadable, counted
+    if not 0 <= t < MAX_TIME_NS:  # a damaged record's time: it would land anywhere in the flight
+        skipped[f"time_out_of_range_{name}"] += 1
+        return
     if name.startswith("IMU"):
         if not _healthy(d, "GH", "AH", "GyHlt", "AcHlt"):
             skipped["imu_unhealthy"] += 1
@@ -256,8 +263,8 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
     primary = imus[0]
     if field_ned is None and primary.mag is not None:
         rest = (primary.t_ns < primary.t_ns[0] + round(field_rest_s * 1e9)) & ~np.isnan(primary.mag[:, 0])
-        if np.any(rest):
-            field_ned = field_from_rest(primary.accel[rest], primary.mag[rest])
+        field_ned = field_from_rest(primary.accel[rest], primary.mag[rest])
+        if field_ned is not None:
             field_source = f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)"
     seconds = (primary.t_ns[-1] - primary.t_ns[0]) * 1e-9
     rates = ", ".join(f"{len(s.t_ns) / max(seconds, 1e-9):.0f} Hz" for s in imus)
@@ -269,8 +276,8 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
         attribution=f"ArduPilot DataFlash log {path.name}; converted to MAVLink and cut by bingham-fuser import (the log's own terms apply).",
         source=f"ArduPilot DataFlash {path.name}: IMU instances {instances} ({rates}), {len(gnss)} GPS fixes, "
                f"{len(att)} ATT, from {start_s:g} s" + (f" for {duration_s:g} s" if duration_s else ""),
-        mag_field_ned_gauss=field_ned or (0.21, 0.0, 0.43),
-        field_source=field_source if field_ned else "none in the log: the default",
+        mag_field_ned_gauss=field_ned or DEFAULT_FIELD_NED_GAUSS,
+        field_source=field_source if field_ned else NO_FIELD_SOURCE,
         attitude_stream=True,
         attitude_message="ATTITUDE",
         gnss=gnss,

@@ -88,19 +88,25 @@ Reference field
 
 from __future__ import annotations
 
+import contextlib
+import io
 import math
 import os
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
 from core import earth_field
 from core import quaternion as quat
 from drivers.mavlink_decode import MavlinkDecoder
-from drivers.mavlink_encode import MavlinkEncoder
+from drivers.mavlink_encode import MavlinkEncoder, UnencodableSample
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, SourceId
+from drivers.timebase import MAX_TIME_NS, NS_PER_US
+from drivers.validation import ACCEL_MAX_M_S2, MAG_MAX_GAUSS
+from fuser.config import MagSettings
 
 __all__ = [
     "BROAD_ATTRIBUTION",
@@ -120,6 +126,10 @@ __all__ = [
     "read_px4",
     "write_mcap",
 ]
+
+DEFAULT_FIELD_NED_GAUSS = MagSettings().fallback_field_ned_gauss
+"""The reference field written for a log that gives none (the fuser's own fallback)."""
+NO_FIELD_SOURCE = "none in the log: the default"
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -230,15 +240,25 @@ def broad_quat_from_ned(q_nb: np.ndarray) -> np.ndarray:
     return quat.multiply(quat.multiply(np.broadcast_to(quat.conjugate(Q_NE), q_nb.shape), q_nb), np.broadcast_to(Q_BS, q_nb.shape))
 
 
-def field_from_rest(accel: np.ndarray, mag: np.ndarray) -> tuple[float, float, float]:
-    """Reference field (N, E, D gauss) from body-frame samples: mean norm and mean dip, declination 0.
+def field_from_rest(accel: np.ndarray, mag: np.ndarray) -> tuple[float, float, float] | None:
+    """Reference field (N, E, D gauss) from body-frame samples: mean norm and mean dip, declination 0; None
+    without a usable sample.
 
     Norm and dip (angle below the horizontal, from the accelerometer's down)
     are computed per sample and then averaged, so slow rotation during the
-    window does not bias them (a mean of vectors would).
+    window does not bias them (a mean of vectors would). Only samples the
+    drivers would accept count (finite, within ``drivers.validation``'s
+    ranges, some specific force): one damaged record must not become the
+    reference every heading is measured against.
     """
-    a = np.asarray(accel, dtype=float)
-    m = np.asarray(mag, dtype=float)
+    a = np.asarray(accel, dtype=float).reshape(-1, 3)
+    m = np.asarray(mag, dtype=float).reshape(-1, 3)
+    with np.errstate(invalid="ignore"):
+        usable = (np.all(np.abs(a) <= ACCEL_MAX_M_S2, axis=1) & np.all(np.abs(m) <= MAG_MAX_GAUSS, axis=1)
+                  & (np.linalg.norm(a, axis=1) > 0.0) & (np.linalg.norm(m, axis=1) > 0.0))
+    if not np.any(usable):
+        return None
+    a, m = a[usable], m[usable]
     down = -a / np.linalg.norm(a, axis=1)[:, None]  # the accelerometer reads the reaction to gravity
     norms = np.linalg.norm(m, axis=1)
     dips = np.arcsin(np.clip(np.sum(m * down, axis=1) / norms, -1.0, 1.0))
@@ -265,6 +285,7 @@ def read_broad(path: str | Path, start_s: float = 0.0, duration_s: float | None 
     t_ns = np.round(np.arange(i0, i1) * (1e9 / fs)).astype(np.int64)
     # time_usec travels in microseconds: stamp on whole microseconds (1/fs is exactly 3500 us)
     t_ns = (t_ns // 1000) * 1000
+    field_ned = field_from_rest(accel[:rest], mag_g[:rest])
     return SensorData(
         imus=[ImuStream(0, t_ns, gyro, accel, mag_g)],
         ref_t_ns=t_ns.copy(),
@@ -272,7 +293,8 @@ def read_broad(path: str | Path, start_s: float = 0.0, duration_s: float | None 
         reference="truth (BROAD opt_quat, optical motion capture)",
         attribution=BROAD_ATTRIBUTION,
         source=f"BROAD trial {Path(path).stem}, samples {i0}..{i1} of {n} at {fs:.3f} Hz",
-        mag_field_ned_gauss=field_from_rest(accel[:rest], mag_g[:rest]),
+        mag_field_ned_gauss=field_ned or DEFAULT_FIELD_NED_GAUSS,
+        field_source=f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)" if field_ned else NO_FIELD_SOURCE,
         extra={"movement": movement[sl], "index": np.arange(i0, i1), "q_es": q_es[sl]},
     )
 
@@ -282,13 +304,17 @@ def _ulog_vec(d: dict, name: str) -> np.ndarray:
 
 
 def field_from_gnss(fixes: list[GnssSample], unix_time_s: float | None) -> tuple[float, float, float] | None:
-    """The World Magnetic Model field at the first 3-D fix with a position, on the given date; None without one."""
+    """The World Magnetic Model field at the first 3-D fix with a position the model takes, on the given date;
+    None without one (or for a date outside the model's years: a damaged log's)."""
     if unix_time_s is None:
         return None
-    first = next((g for g in fixes if g.fix_type >= 3 and g.lat_deg is not None), None)
-    if first is None:
-        return None
-    return earth_field.field_ned_gauss(first.lat_deg, first.lon_deg, first.alt_m, earth_field.decimal_year(unix_time_s))  # type: ignore[arg-type]
+    for fix in fixes:
+        if fix.fix_type >= 3 and fix.lat_deg is not None:
+            try:
+                return earth_field.field_ned_gauss(fix.lat_deg, fix.lon_deg, fix.alt_m, earth_field.decimal_year(unix_time_s))  # type: ignore[arg-type]
+            except ValueError:  # a position or date the model refuses: a damaged record, the next fix may do
+                continue
+    return None
 
 
 def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None) -> tuple[list[GnssSample], float | None]:
@@ -323,22 +349,50 @@ def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None) -> tuple[list[GnssSam
     return fixes, first_utc
 
 
-def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = None, field_rest_s: float = 2.0) -> SensorData:
-    """A PX4 ULog's ``sensor_combined``, ``vehicle_attitude`` and GNSS (already FRD/NED, SI, gauss)."""
+def _ulog(path: str | Path, topics: list[str]) -> tuple[Any, Counter]:
+    """pyulog's reading of ``topics`` and what it reported skipping (it reports damage with print(): counted
+    here instead, as ``bad_record`` and ``corrupt_data``)."""
     from pyulog import ULog
 
-    ulog = ULog(str(path), ["sensor_combined", "vehicle_attitude", "estimator_status", "vehicle_gps_position", "sensor_gps"])
+    chatter = io.StringIO()
+    with contextlib.redirect_stdout(chatter):
+        ulog = ULog(str(path), topics)
+    text = chatter.getvalue()
+    skipped = Counter({"bad_record": text.count("no subscription found") + text.count("unknown message type"),
+                       "corrupt_data": text.count("File corruption detected")})
+    return ulog, +skipped
+
+
+def _ulog_times_us(d: dict, topic: str, skipped: Counter) -> tuple[np.ndarray, np.ndarray]:
+    """A topic's ``timestamp`` (us since boot) and which of them are times at all: in [0, MAX_TIME_NS) as ns
+    (a damaged record's may be anything; the others counted as ``time_out_of_range_<topic>``)."""
+    t_us = np.asarray(d["timestamp"]).astype(np.int64)  # uint64: a damaged one beyond 2^63 turns negative
+    valid = (t_us >= 0) & (t_us < MAX_TIME_NS // NS_PER_US)
+    if not np.all(valid):
+        skipped[f"time_out_of_range_{topic}"] += int(np.count_nonzero(~valid))
+    return t_us, valid
+
+
+def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = None, field_rest_s: float = 2.0) -> SensorData:
+    """A PX4 ULog's ``sensor_combined``, ``vehicle_attitude`` and GNSS (already FRD/NED, SI, gauss)."""
+    ulog, skipped = _ulog(path, ["sensor_combined", "vehicle_attitude", "estimator_status", "vehicle_gps_position", "sensor_gps"])
     topics = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
+    missing = [name for name in ("sensor_combined", "vehicle_attitude") if name not in topics]
+    if missing:
+        damage = f" (pyulog reported {dict(skipped)})" if skipped else ""
+        raise ValueError(f"{Path(path).name} has no {' or '.join(missing)} data{damage}")
     sc, va = topics["sensor_combined"], topics["vehicle_attitude"]
-    t_us = np.asarray(sc["timestamp"], dtype=np.int64)
-    t0 = int(t_us[0] + start_s * 1e6)
+    t_us, valid = _ulog_times_us(sc, "sensor_combined", skipped)
+    if not np.any(valid):
+        raise ValueError(f"{Path(path).name}: no sensor_combined record has a time since boot")
+    t0 = int(t_us[valid][0] + start_s * 1e6)
     t1 = None if duration_s is None else t0 + int(duration_s * 1e6)
-    keep = (t_us >= t0) & (t_us < t1 if t1 is not None else True)
+    keep = valid & (t_us >= t0) & (t_us < t1 if t1 is not None else True)
     gyro = _ulog_vec(sc, "gyro_rad")[keep]
     accel = _ulog_vec(sc, "accelerometer_m_s2")[keep]
     mag = _ulog_vec(sc, "magnetometer_ga")[keep] if "magnetometer_ga[0]" in sc else None
-    va_t = np.asarray(va["timestamp"], dtype=np.int64)
-    va_keep = (va_t >= t0) & (va_t < t1 if t1 is not None else True)
+    va_t, va_valid = _ulog_times_us(va, "vehicle_attitude", skipped)
+    va_keep = va_valid & (va_t >= t0) & (va_t < t1 if t1 is not None else True)
     ref_q = np.column_stack([np.asarray(va[f"q[{i}]"], dtype=float) for i in range(4)])[va_keep]
     gnss, first_utc = _px4_gnss(topics, t0, t1)
     mag_field, field_source = None, "EKF2 earth-field state (estimator_status.states[16:19], median)"
@@ -351,9 +405,9 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
     if mag_field is None and (mag_field := field_from_gnss(gnss, first_utc)) is not None:
         field_source = "World Magnetic Model at the first 3-D fix (declination included)"
     if mag_field is None and mag is not None:
-        rest = np.asarray(sc["timestamp"])[keep] < t0 + field_rest_s * 1e6
+        rest = t_us[keep] < t0 + field_rest_s * 1e6
         mag_field = field_from_rest(accel[rest], mag[rest])
-        field_source = f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)"
+        field_source = f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)" if mag_field else NO_FIELD_SOURCE
     return SensorData(
         imus=[ImuStream(0, t_us[keep] * 1000, gyro, accel, mag)],
         ref_t_ns=va_t[va_keep] * 1000,
@@ -361,10 +415,11 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
         reference="EKF2 (PX4 vehicle_attitude: the autopilot's estimate, NOT ground truth)",
         attribution=PX4_ATTRIBUTION,
         source=f"PX4 ULog {Path(path).name}, sensor_combined from {start_s:g} s" + (f" for {duration_s:g} s" if duration_s else ""),
-        mag_field_ned_gauss=mag_field or (0.21, 0.0, 0.43),
+        mag_field_ned_gauss=mag_field or DEFAULT_FIELD_NED_GAUSS,
         attitude_stream=True,
         field_source=field_source,
         gnss=gnss,
+        skipped=dict(skipped),
     )
 
 
@@ -380,16 +435,28 @@ def _events(data: SensorData) -> list[tuple[int, int, int, int]]:
     return sorted(events)
 
 
-def _sample(data: SensorData, kind: int, stream: int, i: int, t_ns: int) -> tuple[object, str]:
-    """The sample and the MAVLink message of one event."""
+def _message(data: SensorData, kind: int) -> str:
+    """The MAVLink message an event of ``kind`` travels as."""
+    return "HIGHRES_IMU" if kind == _IMU else data.attitude_message if kind == _ATTITUDE else GNSS_MESSAGE
+
+
+def _sample(data: SensorData, kind: int, stream: int, i: int, t_ns: int) -> object:
+    """The sample of one event; UnencodableSample for an attitude that is not a rotation (a damaged record's)."""
     if kind == _IMU:
         imu = data.imus[stream]
         mag = None if imu.mag is None or np.isnan(imu.mag[i, 0]) else tuple(float(v) for v in imu.mag[i])
         source = SourceId("mavlink", 1, 1, imu.instance)
-        return ImuSample(t_ns, tuple(float(v) for v in imu.gyro[i]), tuple(float(v) for v in imu.accel[i]), mag, source), "HIGHRES_IMU"  # type: ignore[arg-type]
+        return ImuSample(t_ns, tuple(float(v) for v in imu.gyro[i]), tuple(float(v) for v in imu.accel[i]), mag, source)  # type: ignore[arg-type]
     if kind == _ATTITUDE:
-        return AttitudeSample(t_ns, tuple(float(v) for v in quat.normalize(data.ref_q[i])), MAVLINK_SOURCE), data.attitude_message  # type: ignore[arg-type]
-    return data.gnss[i], GNSS_MESSAGE
+        q = data.ref_q[i]
+        if not 0.0 < float(np.linalg.norm(q)) < math.inf:  # zeros or NaN: no rotation to send
+            raise UnencodableSample(f"attitude at {t_ns} ns is not a rotation: {q.tolist()}")
+        return AttitudeSample(t_ns, tuple(float(v) for v in quat.normalize(q)), MAVLINK_SOURCE)  # type: ignore[arg-type]
+    return data.gnss[i]
+
+
+def _listed(counts: dict[str, int]) -> str:
+    return ", ".join(f"{k}={v}" for k, v in sorted(counts.items()))
 
 
 def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None = None, progress: TextIO | None = None) -> ImportSummary:
@@ -413,20 +480,27 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
         "mag_field_source": data.field_source,
     }
     if data.skipped:
-        metadata["skipped"] = ", ".join(f"{k}={v}" for k, v in sorted(data.skipped.items()))
+        metadata["skipped"] = _listed(data.skipped)
     counts = {ImuSample: 0, AttitudeSample: 0, GnssSample: 0}
+    skipped = Counter(data.skipped)
     truth = 0
     with McapRecorder(out, metadata=metadata) as rec:
         events = _events(data)
         for t_ns, kind, stream, i in progress_bar(events, len(events), "import", " messages", progress):
-            sample, message = _sample(data, kind, stream, i, t_ns)
-            for decoded in decoder.feed(encoder.encode(sample, message)):  # type: ignore[arg-type]
+            try:
+                frame = encoder.encode(_sample(data, kind, stream, i, t_ns), _message(data, kind))  # type: ignore[arg-type]
+            except UnencodableSample:  # a damaged record's time or value: counted, the rest goes on
+                skipped[f"out_of_range_{_message(data, kind)}"] += 1
+                continue
+            for decoded in decoder.feed(frame):
                 rec.write_sample(decoded, decoded.t_ns + LINK_LATENCY_NS)
                 counts[type(decoded)] += 1
         for t_ns, q in zip(data.ref_t_ns, data.ref_q):
-            if np.all(np.isfinite(q)):
+            if 0.0 < float(np.linalg.norm(q)) < math.inf:  # unknown (NaN rows) or damaged (zeros): no reference there
                 rec.write_truth(int(t_ns), tuple(float(v) for v in quat.normalize(q)))  # type: ignore[arg-type]
                 truth += 1
+        if skipped != Counter(data.skipped):  # records the encoding left out too: the metadata again, complete (the last wins)
+            rec.add_metadata("bingham_fuser", metadata | {"skipped": _listed(skipped)})
     cfg = None
     if config_path is not None:
         cfg = Path(config_path)
@@ -435,7 +509,7 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
             f"[fuser.mag]\nfield_ned_gauss = [{field_ned[0]}, {field_ned[1]}, {field_ned[2]}]\n"
         )
     return ImportSummary(out, counts[ImuSample], counts[AttitudeSample], truth, dict(decoder.stats), field_ned, cfg,  # type: ignore[arg-type]
-                         counts[GnssSample], dict(data.skipped))
+                         counts[GnssSample], dict(skipped))
 
 
 FORMATS = {"broad": "a BROAD trial (.hdf5)", "px4": "a PX4 ULog (.ulg)", "dataflash": "an ArduPilot DataFlash log (.bin)"}

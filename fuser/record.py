@@ -256,7 +256,7 @@ class McapRecorder:
         self._writer = Writer(self._output, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_data_crcs=True)  # type: ignore[arg-type]
         self._writer.start(profile="", library="bingham-fuser")
         if metadata:
-            self._writer.add_metadata("bingham_fuser", dict(sorted(metadata.items())))
+            self.add_metadata("bingham_fuser", metadata)
         schema_ids: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._sequence: dict[str, int] = {}
@@ -273,6 +273,10 @@ class McapRecorder:
         self.rejected: Counter[str] = Counter()
         """Records not written, by reason: ``time_out_of_range``, ``not_json``, ``write_failed``."""
         self.closed = False
+
+    def add_metadata(self, name: str, metadata: dict[str, str]) -> None:
+        """A metadata record ``name`` (keys sorted); :attr:`LogContents.metadata` reads it back by name."""
+        self._writer.add_metadata(name, dict(sorted(metadata.items())))
 
     @property
     def rejected_total(self) -> int:

@@ -84,7 +84,10 @@ def test_the_logs_configs_are_in_the_new_layout():
     (RestSettings, {"min_s": 0}, "fuser.rest.min_s must be > 0 s, got 0"),
     (RestSettings, {"filter_s": "0.5"}, "fuser.rest.filter_s must be a number, got '0.5'"),
     (MagSettings, {"field_ned_gauss": (0.2, 0.0)}, "fuser.mag.field_ned_gauss must be a list of 3 values, got [0.2, 0.0]"),
-    (MagSettings, {"field_ned_gauss": (0.0, 0.0, 0.0)}, "fuser.mag.field_ned_gauss must not be zero"),
+    (MagSettings, {"field_ned_gauss": (0.0, 0.0, 0.0)}, "fuser.mag.field_ned_gauss must be a field a magnetometer reads"),
+    # a damaged log's import once wrote this reference field: one corrupt sample in the mean of its first 2 s
+    (MagSettings, {"field_ned_gauss": (153048249195.6, 0.0, 305775516277.5)}, "norm above 0 and at most 10 gauss"),
+    (MagSettings, {"fallback_field_ned_gauss": (0.2, 0.0, -12.0)}, "fuser.mag.fallback_field_ned_gauss must be a field"),
     (MagSettings, {"field_ned_gauss": (0.2, "x", 0.4)}, "fuser.mag.field_ned_gauss[1] must be a number, got 'x'"),
     (AttitudeSettings, {"mode": "sometimes"}, "fuser.attitude.mode must be one of 'auto', 'always', 'off', got 'sometimes'"),
     (AttitudeSettings, {"sigma_deg": 0}, "fuser.attitude.sigma_deg must be > 0 deg, got 0"),

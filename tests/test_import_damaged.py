@@ -1,0 +1,149 @@
+"""``bingham-fuser import`` of damaged logs: a record whose time or value a damaged file made absurd is counted
+and left out, and the rest of the log is imported as if it were not there.
+
+Found by flipping random bytes of real and real-shaped logs (pyulog's sample.ulg, the DataFlash writer's
+flight): a ULog or DataFlash record with a time beyond 2^63 ns stopped the import with an internal error (the
+MAVLink encoder's ``struct.error``), one beyond int64 made the DataFlash reader fail the whole file, and one
+magnetometer sample of 10^14 gauss in the first two seconds became the reference field (1.5e11 gauss) that every
+heading was to be measured against.
+
+The logs here are a vehicle at rest, level, facing north, in a field of (0.2, 0, 0.45) gauss, so the reference
+field the importer must find is that one exactly (norm and dip of the undamaged samples).
+"""
+
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.mavlink_encode import MavlinkEncoder, UnencodableSample
+from drivers.samples import GnssSample, ImuSample, SourceId
+from fuser.importers import ImuStream, SensorData, import_log, write_mcap
+from fuser.record import read_log
+
+from dataflash_writer import DataFlashWriter
+from ulog_writer import ULogWriter
+
+FIELD_NED_GAUSS = (0.2, 0.0, 0.45)
+GRAVITY = (0.0, 0.0, -9.80665)  # FRD, level: the accelerometer reads the reaction, up
+BEYOND_INT64_US = 2**64 - 2**11  # a float64 exactly, as the DataFlash writer packs it
+SOURCE = SourceId("mavlink", 1, 1, 0)
+
+
+def _dataflash(path: Path) -> None:
+    """3 s at 200 Hz (IMU), 20 Hz (MAG), 5 Hz (2-D GPS fixes) and 25 Hz (ATT); damaged: an IMU record's time, a
+    MAG record at the int16's end (32.8 gauss) in the first 2 s, a GPS record's speed (NaN)."""
+    w = DataFlashWriter()
+    w.declare(76, "IMU", "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
+    w.declare(80, "MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S")
+    w.declare(82, "GPS", "QBBIHBcLLeffffB", "TimeUS,I,Status,GMS,GWk,NSats,HDop,Lat,Lng,Alt,Spd,GCrs,VZ,Yaw,U")
+    w.declare(86, "ATT", "QccccCCCCB", "TimeUS,DesRoll,Roll,DesPitch,Pitch,DesYaw,Yaw,ErrRP,ErrYaw,AEKF")
+    for k in range(600):
+        t_us = 1_000_000 + 5_000 * k
+        w.write("IMU", TimeUS=BEYOND_INT64_US if k == 300 else t_us, I=0, GyrX=0.0, GyrY=0.0, GyrZ=0.0, AccX=GRAVITY[0],
+                AccY=GRAVITY[1], AccZ=GRAVITY[2], EG=0, EA=0, T=40.0, GH=1, AH=1, GHz=1000, AHz=1000)
+        if k % 10 == 3:
+            mag_mg = (32767, 0, 0) if k == 103 else tuple(round(v * 1000) for v in FIELD_NED_GAUSS)
+            w.write("MAG", TimeUS=t_us + 100, I=0, MagX=mag_mg[0], MagY=mag_mg[1], MagZ=mag_mg[2], OfsX=0, OfsY=0, OfsZ=0,
+                    MOX=0, MOY=0, MOZ=0, Health=1, S=t_us)
+        if k % 40 == 7:
+            w.write("GPS", TimeUS=t_us + 200, I=0, Status=2, GMS=0, GWk=0, NSats=6, HDop=2.0, Lat=52.5, Lng=13.4, Alt=40.0,
+                    Spd=float("nan") if k == 207 else 0.0, GCrs=0.0, VZ=0.0, Yaw=0.0, U=1)
+        if k % 8 == 5:
+            w.write("ATT", TimeUS=t_us + 300, DesRoll=0, Roll=0, DesPitch=0, Pitch=0, DesYaw=0, Yaw=0, ErrRP=0.0, ErrYaw=0.0, AEKF=3)
+    path.write_bytes(bytes(w.data))
+
+
+SENSOR_COMBINED = [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"), ("float[3]", "accelerometer_m_s2"),
+                   ("float[3]", "magnetometer_ga")]
+VEHICLE_ATTITUDE = [("uint64_t", "timestamp"), ("float[4]", "q")]
+
+
+def _ulog(path: Path, attitude: bool = True) -> None:
+    """3 s of sensor_combined at 250 Hz and vehicle_attitude at 50 Hz; damaged: a sensor_combined record's time
+    (beyond 2^63 us: negative as int64), a magnetometer reading of 3e5 gauss in the first 2 s, a vehicle_attitude
+    record's time and another's quaternion (zeros), and a data record for a message id nothing subscribed."""
+    w = ULogWriter(start_us=1_000_000)
+    w.topic("sensor_combined", SENSOR_COMBINED)
+    if attitude:
+        w.topic("vehicle_attitude", VEHICLE_ATTITUDE)
+    for k in range(750):
+        t_us = 1_000_000 + 4_000 * k
+        mag = (3e5, 0.0, 0.0) if k == 100 else FIELD_NED_GAUSS
+        w.write("sensor_combined", timestamp=2**63 + 7 if k == 400 else t_us, gyro_rad=(0.0, 0.0, 0.0),
+                accelerometer_m_s2=GRAVITY, magnetometer_ga=mag)
+        if attitude and k % 5 == 2:
+            w.write("vehicle_attitude", timestamp=BEYOND_INT64_US if k == 502 else t_us + 100,
+                    q=(0.0, 0.0, 0.0, 0.0) if k == 602 else (1.0, 0.0, 0.0, 0.0))
+        if k == 600:
+            w.data += struct.pack("<H", 11) + b"D" + struct.pack("<H", 999) + bytes(9)  # msg id 999: never subscribed
+    path.write_bytes(bytes(w.data))
+
+
+def test_a_damaged_dataflash_log_imports_the_rest_and_counts_what_it_left_out(tmp_path):
+    _dataflash(tmp_path / "damaged.bin")
+    s = import_log(tmp_path / "damaged.bin", tmp_path / "out.mcap")
+    assert s.skipped["time_out_of_range_IMU"] == 1
+    assert s.decoder_stats["non_finite"] == 1  # the speed of NaN: sent as GPS_INPUT (floats), refused on arrival
+    assert s.decoder_stats["mag_out_of_range"] == 1  # the 32.8-gauss reading's IMU sample, refused on arrival
+    assert s.imu == 598 and s.gnss == 14
+    assert s.mag_field_ned_gauss == pytest.approx(FIELD_NED_GAUSS, abs=1e-9)  # the 32.8-gauss reading left out
+
+
+def test_a_damaged_ulog_imports_the_rest_and_counts_what_it_left_out(tmp_path):
+    pytest.importorskip("pyulog")
+    _ulog(tmp_path / "damaged.ulg")
+    s = import_log(tmp_path / "damaged.ulg", tmp_path / "out.mcap")
+    assert s.skipped == {"time_out_of_range_sensor_combined": 1, "time_out_of_range_vehicle_attitude": 1, "bad_record": 1,
+                         "out_of_range_ATTITUDE_QUATERNION": 1}
+    assert s.attitude == 148 and s.truth == 148
+    assert s.mag_field_ned_gauss == pytest.approx(FIELD_NED_GAUSS, abs=1e-6)  # float32 values; the 3e5 one left out
+    assert s.decoder_stats["mag_out_of_range"] == 1  # and its sample refused by the decoder, as any other would be
+
+
+def test_a_ulog_without_the_attitude_topic_is_one_clear_error(tmp_path):
+    pytest.importorskip("pyulog")
+    _ulog(tmp_path / "no_attitude.ulg", attitude=False)
+    with pytest.raises(ValueError, match="no_attitude.ulg has no vehicle_attitude data"):
+        import_log(tmp_path / "no_attitude.ulg", tmp_path / "out.mcap")
+
+
+@pytest.mark.parametrize("sample, message", [
+    (ImuSample(-5_000, (0.0, 0.0, 0.0), GRAVITY, None, SOURCE), "HIGHRES_IMU"),  # before time 0: uint64 us
+    (ImuSample(2**80, (0.0, 0.0, 0.0), GRAVITY, None, SOURCE), "RAW_IMU"),
+    (GnssSample(1_000, 3, (float("nan"), 0.0, 0.0), True, None, 52.5, 13.4, 40.0, False, SOURCE), "GPS_RAW_INT"),
+    (GnssSample(1_000, 3, (1.0, 0.0, 0.0), True, float("inf"), 52.5, 13.4, 40.0, False, SOURCE), "GPS_RAW_INT"),
+    (GnssSample(1_000, 3, (1.0, 0.0, 0.0), True, None, 52.5, 13.4, 1e12, False, SOURCE), "GLOBAL_POSITION_INT"),
+])
+def test_a_sample_its_message_cannot_hold_sends_nothing(sample, message):
+    """The encoder refuses it (UnencodableSample) and leaves its stream as it was: the next frame, HEARTBEAT
+    included, is the one a fresh encoder would send."""
+    encoder = MavlinkEncoder()
+    with pytest.raises(UnencodableSample, match=message):
+        encoder.encode(sample, message)
+    good = ImuSample(2_000_000, (0.01, 0.0, 0.0), GRAVITY, FIELD_NED_GAUSS, SOURCE)
+    assert encoder.encode(good) == MavlinkEncoder().encode(good)
+
+
+def test_a_message_that_is_not_the_samples_is_a_usage_error_not_a_damaged_sample():
+    with pytest.raises(ValueError) as exc:
+        MavlinkEncoder().encode(ImuSample(0, (0.0, 0.0, 0.0), GRAVITY, None, SOURCE), "ATTITUDE")
+    assert not isinstance(exc.value, UnencodableSample)
+
+
+def test_a_value_the_link_cannot_carry_is_left_out_and_the_metadata_says_so(tmp_path):
+    """A fix with a latitude of NaN reaches the encoder (a ULog's ``latitude_deg`` is a double): GPS_INPUT carries
+    it in 1e-7 degrees, an integer. It is counted beside what the reader left out, in the summary and in the
+    file's metadata (written again at the end, complete; a reader takes the last)."""
+    t = np.arange(400, dtype=np.int64) * 5_000_000
+    imu = ImuStream(0, t, np.zeros((400, 3)), np.tile(GRAVITY, (400, 1)), np.tile(FIELD_NED_GAUSS, (400, 1)))
+    fixes = [GnssSample(int(t[k]), 3, (0.0, 0.0, 0.0), True, 0.3, float("nan") if k == 200 else 52.5, 13.4, 40.0, False, SOURCE)
+             for k in range(0, 400, 40)]
+    data = SensorData([imu], t[::10], np.tile([1.0, 0.0, 0.0, 0.0], (40, 1)), "truth", "none", "test", FIELD_NED_GAUSS,
+                      gnss=fixes, skipped={"bad_record": 2})
+    s = write_mcap(data, tmp_path / "out.mcap")
+    assert s.skipped == {"bad_record": 2, "out_of_range_GPS_INPUT": 1} and s.gnss == 9 and s.imu == 400
+    assert read_log(tmp_path / "out.mcap").metadata["bingham_fuser"]["skipped"] == "bad_record=2, out_of_range_GPS_INPUT=1"
