@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import queue
 import random
 import socket
 import subprocess
@@ -58,18 +59,23 @@ def start_example(endpoint: str, count: int) -> subprocess.Popen[str]:
 
 
 def send_to(proc: subprocess.Popen[str], pub: ZenohPublisher, sent: list[Estimate]) -> list[Estimate]:
-    """Publish ``sent`` once ``proc`` matches, 1 ms apart (ten times the loop's default rate), return what it printed.
+    """Publish ``sent`` once ``proc`` matches, each once the previous one has been printed; return what it printed.
 
-    Not as one burst: the publisher's puts use congestion control DROP (fuser/publish.py), so a burst of 50 put as
-    fast as Python can lost its last ones about one run in six (the subscriber printed 42 and waited), which a live
-    loop, one estimate per tick, never does."""
+    One in flight at a time, as a live loop's one estimate per tick is: the publisher's puts use congestion
+    control DROP (fuser/publish.py), so a burst could lose its last ones to a full queue (50 put as fast as Python
+    can: one run in six; 1 ms apart on a cold cache, both cores compiling: the subscriber printed 1 of 30 and
+    waited)."""
     wait_for(lambda: pub.has_subscribers)
+    assert proc.stdout is not None
+    lines: queue.Queue[str] = queue.Queue()
+    reader = threading.Thread(target=lambda: [lines.put(line) for line in proc.stdout], daemon=True)  # type: ignore[union-attr]
+    reader.start()
+    printed = []
     for est in sent:
         pub.publish_estimate(est)
-        time.sleep(0.001)
-    out, _ = proc.communicate(timeout=60)  # a liveness limit: a fresh clone's first run shares both cores with numba compiling
-    assert proc.returncode == 0
-    return [Estimate.from_dict(json.loads(line)) for line in out.splitlines()]
+        printed.append(lines.get(timeout=60))  # a liveness limit: a fresh clone's first run shares both cores with numba
+    assert proc.wait(timeout=60) == 0
+    return [Estimate.from_dict(json.loads(line)) for line in printed]
 
 
 def test_estimates_reach_another_process_intact_across_restarts(publisher: ZenohPublisher, endpoint: str) -> None:
