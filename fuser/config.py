@@ -173,8 +173,14 @@ class GyroSettings(Settings):
     """Longest interval between two gyro samples that is integrated, and the longest the last rate is held
     after a sample; longer ones are gaps. 0.6 s integrates a telemetry link's 2 Hz."""
     rate_window_s: Seconds = 1.0
-    """Time constant over which the IMU rate is measured (the sample interval, low-passed): ``attitude.mode =
-    "auto"`` fuses the autopilot's attitude while it is slow."""
+    """Time constant over which the IMU stream is measured: its sample interval, low-passed (``attitude.mode =
+    "auto"`` fuses the autopilot's attitude while it is slow), and the rate walk its samples show, released
+    (:mod:`fuser.model.propagation`)."""
+    smooth_interval_s: Seconds = 0.02
+    """Intervals between gyro samples up to this long are sampled finely enough that the rate's path between two
+    samples is the one they show (an IMU's filters and the vehicle's inertia leave no turn unseen at 50 Hz or
+    faster); a longer one counts the rate walk its samples show when it exceeds ``rate_walk_rad_s_rt_s``
+    (:mod:`fuser.model.propagation`)."""
     rate_walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 0.3
     """How fast the true rate may depart from the last sample (a random walk of the rate): the error of the
     rate between samples, ``s^2 h^3 / 12`` interpolated over an interval ``h``, ``s^2 h^3 / 3`` held for ``h``."""

@@ -123,3 +123,55 @@ def test_a_hold_runs_out_after_the_longest_interval_and_the_rest_is_a_gap():
     assert held == pytest.approx(0.1 * 0.03)  # held for 30 ms only
     assert gap == pytest.approx(0.02)  # the last 20 ms of the 50 have no rate
     assert closed == pytest.approx(4.0 * 0.03**3 / 3.0)  # the hold's unverified rotation enters the state once
+
+
+def _closed_variance(rates: np.ndarray, rate_hz: float) -> float:
+    """The variance the intervals of a gyro stream (one sample per tick, each tick one sample period) close into
+    the state, summed; ``rates`` (n, 3), one rate per sample."""
+    gyro, state = params().gyro, part("gyro")
+    step = round(1e9 / rate_hz)
+    closed = 0.0
+    for k, w in enumerate(rates):
+        closed += integrate_gyro(gyro, state, _samples((k * step, tuple(float(v) for v in w))), (k - 1) * step, k * step).closed_variance_rad2
+    return closed
+
+
+def _rough(walk: float, h: float, n: int) -> np.ndarray:
+    """A rate whose every axis walks at intensity ``walk`` (rad/s/sqrt(s)), sampled every ``h`` s, pulled back
+    towards 0 at 0.5 /s (within the gyro's range, and nearly a random walk over an interval)."""
+    rng = np.random.default_rng(7)
+    rates = np.zeros((n, 3))
+    for k in range(1, n):
+        rates[k] = rates[k - 1] * math.exp(-0.5 * h) + rng.normal(0.0, walk * math.sqrt(h), 3)
+    return rates
+
+
+@pytest.mark.parametrize("walk", [2.0, 5.0])
+def test_at_a_telemetry_rate_a_rough_rate_widens_each_interval_by_the_walk_its_samples_show(walk):
+    """A rate walking at ``walk`` on every axis, sampled at 4 Hz: the closed variance is the Brownian bridge's
+    ``s^2 h^3 / 12`` per interval with ``s`` near the true one (from above: one change of slope is a noisy measure,
+    and the window keeps the roughest of its second), not the configured 0.3."""
+    h, n = 0.25, 400
+    per_interval = _closed_variance(_rough(walk, h, n), 1.0 / h) / (n - 1)
+    assert 1.0 < per_interval / (walk**2 * h**3 / 12.0) < 4.0, per_interval / (walk**2 * h**3 / 12.0)
+
+
+def test_at_a_telemetry_rate_a_steadily_changing_rate_is_not_rough():
+    """A rate ramping at 2 rad/s^2 and holding (the entry into a turn), at 4 Hz: every slope the same but at the
+    ramp's two ends, so the configured walk is all that is counted but for the second after each (the window)."""
+    h = 0.25
+    ramp = np.concatenate([np.zeros(8), 2.0 * h * np.arange(1, 9), np.full(40, 16 * h)])
+    rates = np.column_stack([ramp, np.zeros_like(ramp), np.zeros_like(ramp)])
+    closed = _closed_variance(rates, 1.0 / h)
+    configured = 0.3**2 * h**3 / 12.0
+    steady = _closed_variance(np.full((len(rates), 3), 1.0), 1.0 / h)
+    assert steady == pytest.approx(configured * (len(rates) - 1))
+    corner = 2.0**2 / 3.0 / (2.0 / h) * h**3 / 12.0  # a change of slope of 2 rad/s^2 on one axis, at each end
+    assert closed == pytest.approx(steady + 2 * 5 * (corner - configured), rel=1e-9)  # the corner's interval, the 4 in its second
+
+
+def test_sampled_at_50_hz_or_faster_the_samples_roughness_is_not_counted():
+    """The same random walk of 10 rad/s/sqrt(s) at 200 Hz: intervals of 5 ms are within ``gyro.smooth_interval_s``
+    (the samples follow the rate), so only the configured walk is counted, to the bit."""
+    h, n = 0.005, 400
+    assert _closed_variance(_rough(10.0, h, n), 1.0 / h) == pytest.approx(0.3**2 * h**3 / 12.0 * (n - 1), rel=1e-12)

@@ -105,6 +105,29 @@ class BuiltTlog:
     """Per IMU type, (sender time ns, raw gyro in mrad/s) of every IMU message sent, written or not."""
 
 
+def up_intervals(shape: TlogShape) -> list[tuple[float, float, float]]:
+    """(start, end, boot clock at start) of each stretch the autopilot talks, in log time (s)."""
+    if shape.reboot_at_s is None:
+        return [(0.0, shape.duration_s, shape.boot_at_start_s)]
+    back = shape.reboot_at_s + shape.reboot_silent_s
+    return [(0.0, shape.reboot_at_s, shape.boot_at_start_s), (back, shape.duration_s, shape.boot_after_reboot_s)]
+
+
+def true_attitude_at(built: BuiltTlog, shape: TlogShape, boot_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's attitude (w, x, y, z) at autopilot boot-clock times ``boot_ns`` (the clock of its IMUs and
+    ATTITUDE, which restarts at the reboot), from the 400 Hz truth the messages were made from, and the log
+    time (s) of each; NaN outside every stretch the autopilot talked."""
+    boot_s = np.asarray(boot_ns, dtype=float) * 1e-9
+    t = np.full(boot_s.shape, np.nan)
+    for start, end, boot0 in up_intervals(shape):
+        inside = (boot_s >= boot0) & (boot_s < boot0 + end - start)
+        t[inside] = boot_s[inside] - boot0 + start
+    index = np.clip(np.round(np.nan_to_num(t) * 400.0).astype(int), 0, len(built.flight.t_ns) - 1)
+    q = built.flight.q_true[index]
+    q[np.isnan(t)] = np.nan
+    return q, t
+
+
 class _Sender:
     """One MAVLink sender with its own sequence numbers, packing in the order of sending."""
 
@@ -150,14 +173,6 @@ class _Builder:
         self.events: list[tuple[float, int, str, _Sender, apm.MAVLink_message, int]] = []
         """(log time, order, kind, sender, message, sender time ns), packed in time order once all are known."""
         self.imu_sent: dict[str, list[tuple[int, tuple[int, int, int]]]] = {m: [] for m in IMU_TYPES}
-
-    def up_intervals(self) -> list[tuple[float, float, float]]:
-        """(start, end, boot clock at start) of each stretch the autopilot talks."""
-        s = self.shape
-        if s.reboot_at_s is None:
-            return [(0.0, s.duration_s, s.boot_at_start_s)]
-        back = s.reboot_at_s + s.reboot_silent_s
-        return [(0.0, s.reboot_at_s, s.boot_at_start_s), (back, s.duration_s, s.boot_after_reboot_s)]
 
     def add(self, t_s: float, kind: str, msg: apm.MAVLink_message, sender: _Sender | None = None, sender_ns: int = 0) -> None:
         self.events.append((t_s, len(self.events), kind, sender or self.autopilot, msg, sender_ns))
@@ -224,7 +239,8 @@ class _Builder:
         s, rng = self.shape, self.rng
         out = []
         last = 0.0
-        reboot = self.up_intervals()[-1][0] if len(self.up_intervals()) > 1 else math.inf
+        intervals = up_intervals(self.shape)
+        reboot = intervals[-1][0] if len(intervals) > 1 else math.inf
         for t, _, kind, sender, msg, sender_ns in sorted(self.events, key=lambda e: (e[0], e[1])):
             if sender is self.autopilot and t >= reboot:  # the autopilot's sequence starts again after its reboot
                 reboot, sender.mav.seq = math.inf, 0
@@ -245,7 +261,7 @@ def build_tlog(path: str | Path, shape: TlogShape = TlogShape()) -> BuiltTlog:
     path = Path(path)
     flight = simulate(SimConfig(seed=shape.seed, duration_s=shape.duration_s + 1.0, imu_rate_hz=400.0, dropout_probability=0.0))
     b = _Builder(shape, flight)
-    for start, end, boot0 in b.up_intervals():
+    for start, end, boot0 in up_intervals(shape):
         b.vehicle_messages(start, end, boot0)
     b.ground_messages()
     arrivals = b.receive_times()

@@ -14,7 +14,8 @@ The rotation is the last gyro sample's rate, bias removed, held over the
 lead (the rate held to the tick's end by :mod:`fuser.model.propagation`,
 continued), for at most ``gyro.max_interval_s`` after that sample. Its
 error is the held rate's (the random walk of the rate, intensity
-``gyro.rate_walk_rad_s_rt_s`` = ``s``): a rate held for ``h`` after its
+``gyro.rate_walk_rad_s_rt_s`` = ``s``, or the rougher one the last samples
+showed, :func:`fuser.model.propagation.rate_walk2`): a rate held for ``h`` after its
 sample leaves an angle error of variance ``s^2 h^3 / 3``, of which the
 part up to the tick's end is already in the published state
 (``Motion.hold_variance_rad2``) and the rest, ``s^2 ((a + L)^3 - a^3) / 3``
@@ -48,6 +49,7 @@ from numba import njit
 
 from core.quaternion_kernels import IDENTITY, from_rotvec
 from fuser.config import FuserConfig
+from fuser.model.propagation import rate_walk2
 from fuser.model.tick import Lead
 
 __all__ = ["ahead_ns", "carry_ns", "lead"]
@@ -90,7 +92,7 @@ def lead(params: np.record, gyro: np.record, bias_rad_s: tuple, tick_ns: int, ah
         return Lead(False, IDENTITY, variance)
     age_s = (tick_ns - track.last_ns) * 1e-9
     end_s = age_s + held_s
-    variance += params.rate_walk_rad_s_rt_s * params.rate_walk_rad_s_rt_s * (end_s * end_s * end_s - age_s * age_s * age_s) / 3.0
+    variance += rate_walk2(params, track) * (end_s * end_s * end_s - age_s * age_s * age_s) / 3.0
     rate = track.last_rate_rad_s
     x, y, z = rate[0] - bias_rad_s[0], rate[1] - bias_rad_s[1], rate[2] - bias_rad_s[2]
     angle = math.sqrt(x * x + y * y + z * z) * held_s

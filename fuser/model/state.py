@@ -57,6 +57,11 @@ GYRO_TRACK = _record(
     ("has_interval_s", "?"),
     ("interval_s", "f8"),  # interval between samples, low-passed over gyro.rate_window_s (from the second sample)
     ("saturated", "?"),  # the last sample was saturated: the rate since it is unknown
+    ("has_slope", "?"),  # the last interval was integrated: its slope is known
+    ("slope_rad_s2", "f8", (3,)),  # (rate - previous rate) / h of the last integrated interval
+    ("slope_h_s", "f8"),  # that interval's length h
+    ("walk2_rad2_s3", "f8"),  # the rate walk's intensity^2 the roughest interval of the rate window showed (0: none)
+    ("walk2_ns", "i8"),  # that interval's end
 )
 """The vehicle's gyro stream (all its IMUs) on the loop's timeline (:mod:`fuser.model.propagation`)."""
 
