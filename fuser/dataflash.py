@@ -226,7 +226,8 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
     rows, params, skipped = _read_records(path)
     instances = sorted(int(k[3:]) for k in rows if k.startswith("imu"))
     if not instances:  # (an instance the cut leaves empty is dropped below)
-        raise ValueError(f"{path} has no IMU records: not an ArduPilot DataFlash log, or one without IMU logging")
+        damage = f" (DFReader skipped {skipped['corrupt_bytes']:,} corrupt bytes: a damaged one?)" if skipped["corrupt_bytes"] else ""
+        raise ValueError(f"{path} has no IMU records: not an ArduPilot DataFlash log, or one without IMU logging{damage}")
     data = {k: np.array(v, dtype=float) for k, v in rows.items() if k.startswith(("imu", "mag"))}
     t0 = int(data[f"imu{instances[0]}"][0, 0]) + round(start_s * 1e9)
     t1 = None if duration_s is None else t0 + round(duration_s * 1e9)

@@ -147,3 +147,15 @@ def test_a_value_the_link_cannot_carry_is_left_out_and_the_metadata_says_so(tmp_
     s = write_mcap(data, tmp_path / "out.mcap")
     assert s.skipped == {"bad_record": 2, "out_of_range_GPS_INPUT": 1} and s.gnss == 9 and s.imu == 400
     assert read_log(tmp_path / "out.mcap").metadata["bingham_fuser"]["skipped"] == "bad_record=2, out_of_range_GPS_INPUT=1"
+
+
+def test_a_dataflash_log_whose_imu_format_is_damaged_says_it_may_be_damaged(tmp_path):
+    """The IMU's FMT record hit (its header bytes): DFReader cannot read a single IMU record and skips them as
+    corrupt bytes; the error says so instead of only "not a DataFlash log"."""
+    _dataflash(tmp_path / "damaged.bin")
+    data = bytearray((tmp_path / "damaged.bin").read_bytes())
+    fmt_imu = data.index(b"\xa3\x95\x80\x4c")  # FMT (128) declaring type 76, IMU
+    data[fmt_imu : fmt_imu + 2] = b"\x00\x00"
+    (tmp_path / "damaged.bin").write_bytes(bytes(data))
+    with pytest.raises(ValueError, match=r"has no IMU records: .* \(DFReader skipped [\d,]+ corrupt bytes: a damaged one\?\)"):
+        import_log(tmp_path / "damaged.bin", tmp_path / "out.mcap")
