@@ -176,11 +176,11 @@ class GyroSettings(Settings):
     """Time constant over which the IMU stream is measured: its sample interval, low-passed (``attitude.mode =
     "auto"`` fuses the autopilot's attitude while it is slow), and the rate walk its samples show, released
     (:mod:`fuser.model.propagation`)."""
-    smooth_interval_s: Seconds = 0.02
-    """Intervals between gyro samples up to this long are sampled finely enough that the rate's path between two
-    samples is the one they show (an IMU's filters and the vehicle's inertia leave no turn unseen at 50 Hz or
-    faster); a longer one counts the rate walk its samples show when it exceeds ``rate_walk_rad_s_rt_s``
-    (:mod:`fuser.model.propagation`)."""
+    smooth_interval_s: Seconds = 0.03
+    """A gyro stream whose sample interval (low-passed over ``rate_window_s``) is up to this long is sampled finely
+    enough that the rate's path between two samples is the one they show (an IMU's filters and the vehicle's
+    inertia leave no turn unseen at 50 Hz, jitter and all, or faster); a slower one counts the rate walk its samples
+    show when it exceeds ``rate_walk_rad_s_rt_s`` (:mod:`fuser.model.propagation`)."""
     rate_walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 0.3
     """How fast the true rate may depart from the last sample (a random walk of the rate): the error of the
     rate between samples, ``s^2 h^3 / 12`` interpolated over an interval ``h``, ``s^2 h^3 / 3`` held for ``h``."""

@@ -30,7 +30,7 @@ def params(config: FuserConfig | None = None) -> np.record:
 def _flag(name: str, names: tuple[str, ...]) -> str | None:
     """The ``has_`` flag of field ``name``: its own, or the one it shares (``has_accel_lp`` for ``accel_lp_m_s2``, the
     low-passes' ``has_lp``, ``has_recent``); None for a field that is always present."""
-    stem = name.removesuffix("_m_s2").removesuffix("_rad_s")
+    stem = name.removesuffix("_m_s2").removesuffix("_rad_s2").removesuffix("_rad_s")
     candidates = [f"has_{name}", f"has_{stem}"] + (["has_lp"] if "_lp" in name else []) + (["has_recent"] if name.startswith("recent") else [])
     return next((c for c in candidates if c in names), None)
 

@@ -125,15 +125,17 @@ def test_a_hold_runs_out_after_the_longest_interval_and_the_rest_is_a_gap():
     assert closed == pytest.approx(4.0 * 0.03**3 / 3.0)  # the hold's unverified rotation enters the state once
 
 
-def _closed_variance(rates: np.ndarray, rate_hz: float) -> float:
-    """The variance the intervals of a gyro stream (one sample per tick, each tick one sample period) close into
-    the state, summed; ``rates`` (n, 3), one rate per sample."""
+def _closed_variance(rates: np.ndarray, rate_hz: float, times_ns: np.ndarray | None = None) -> float:
+    """The variance a gyro stream (one sample per tick) closes into the state and holds for its published state,
+    summed over the ticks; ``rates`` (n, 3), one rate per sample, at ``rate_hz`` or at ``times_ns``."""
     gyro, state = params().gyro, part("gyro")
-    step = round(1e9 / rate_hz)
-    closed = 0.0
-    for k, w in enumerate(rates):
-        closed += integrate_gyro(gyro, state, _samples((k * step, tuple(float(v) for v in w))), (k - 1) * step, k * step).closed_variance_rad2
-    return closed
+    times = np.arange(len(rates)) * round(1e9 / rate_hz) if times_ns is None else times_ns
+    total, start = 0.0, int(times[0]) - 1
+    for t, w in zip(times.tolist(), rates):
+        motion = integrate_gyro(gyro, state, _samples((t, tuple(float(v) for v in w))), start, t + 1)
+        total += motion.closed_variance_rad2 + motion.hold_variance_rad2
+        start = t + 1
+    return total
 
 
 def _rough(walk: float, h: float, n: int) -> np.ndarray:
@@ -171,7 +173,32 @@ def test_at_a_telemetry_rate_a_steadily_changing_rate_is_not_rough():
 
 
 def test_sampled_at_50_hz_or_faster_the_samples_roughness_is_not_counted():
-    """The same random walk of 10 rad/s/sqrt(s) at 200 Hz: intervals of 5 ms are within ``gyro.smooth_interval_s``
+    """The same random walk of 10 rad/s/sqrt(s) at 200 Hz: a stream at 5 ms is within ``gyro.smooth_interval_s``
     (the samples follow the rate), so only the configured walk is counted, to the bit."""
     h, n = 0.005, 400
     assert _closed_variance(_rough(10.0, h, n), 1.0 / h) == pytest.approx(0.3**2 * h**3 / 12.0 * (n - 1), rel=1e-12)
+
+
+def test_a_dropout_in_a_fast_stream_is_not_a_slow_stream():
+    """200 Hz with one 30-ms dropout in which the rate steps by 2 rad/s, then 10 s more: the stream's low-passed
+    interval stays fast, so the step's change of slope is not taken for unseen motion, then or later (before:
+    53 times the configured walk, held for the rest of the flight)."""
+    h = 0.005
+    times = np.concatenate([np.arange(100), np.arange(106, 2106)]) * 5_000_000
+    rates = np.zeros((len(times), 3))
+    rates[100:, 0] = 2.0
+    dropped = _closed_variance(rates, 1.0 / h, times)
+    steady = _closed_variance(np.zeros((len(times), 3)), 1.0 / h, times)
+    assert dropped == pytest.approx(steady, rel=1e-12)
+
+
+def test_at_50_hz_with_jitter_the_samples_roughness_is_not_counted():
+    """50 Hz, each interval 20 ms +- 0.5 ms (a real IMU's schedule), the rate walking at 3 rad/s/sqrt(s): the
+    configured walk only, as for an exactly regular stream (counted per interval, half of them had exceeded 20 ms:
+    3.2 times the variance)."""
+    n = 500
+    jitter = np.random.default_rng(3).uniform(-500_000, 500_000, n).round().astype(np.int64)
+    times = np.arange(n, dtype=np.int64) * 20_000_000 + jitter
+    walked = _closed_variance(_rough(3.0, 0.02, n), 50.0, times)
+    still = _closed_variance(np.zeros((n, 3)), 50.0, times)
+    assert walked == pytest.approx(still, rel=1e-12)

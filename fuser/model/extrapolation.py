@@ -92,7 +92,7 @@ def lead(params: np.record, gyro: np.record, bias_rad_s: tuple, tick_ns: int, ah
         return Lead(False, IDENTITY, variance)
     age_s = (tick_ns - track.last_ns) * 1e-9
     end_s = age_s + held_s
-    variance += rate_walk2(params, track) * (end_s * end_s * end_s - age_s * age_s * age_s) / 3.0
+    variance += rate_walk2(params, track, tick_ns) * (end_s * end_s * end_s - age_s * age_s * age_s) / 3.0
     rate = track.last_rate_rad_s
     x, y, z = rate[0] - bias_rad_s[0], rate[1] - bias_rad_s[1], rate[2] - bias_rad_s[2]
     angle = math.sqrt(x * x + y * y + z * z) * held_s

@@ -33,27 +33,29 @@ is far rougher: a random walk of the rate leaves consecutive slopes
 ``(w_k - w_(k-1)) / h_k`` that differ by a variance of ``s^2 (1/h_k +
 1/h_(k-1))``, while a rate that changes steadily (a turn's entry) leaves them
 equal. So each interval's intensity is ``max(s_a^2, e^2 / (1/h_k +
-1/h_(k-1)))``, ``e`` the change of slope (per axis, the three averaged: the
-noise is isotropic: the trace is kept), in the interval's own variance and, until the next
-interval, in the hold's (:func:`rate_walk2`, also the published lead's,
+1/h_(k-1)))``, ``e`` the change of slope (per axis, the three averaged as
+the noise is isotropic: the trace is kept), in the interval's own variance
+and, until the next interval, in the hold's (:func:`rate_walk2`, also the published lead's,
 :mod:`fuser.model.extrapolation`). One change of slope is a noisy measure
-(three degrees of freedom), so the roughest interval of the last
-``gyro.rate_window_s`` is kept (a rougher one replaces it at once, a
-smoother one once it is older than the window): a manoeuvre widens the
-estimate from its first rough interval, keeps it wide while it lasts, and
-lets it go a window after it. Only intervals longer than
-``gyro.smooth_interval_s`` (20 ms) count: sampled faster, the rate's path
-between two samples is the one they show (an IMU's anti-alias filter keeps
-the integral of what it smooths), and a change of slope there is the rate
-the samples already follow. Counted at 286 Hz, BROAD's tapping trial took
+(three degrees of freedom), so it is peak-held: a rougher interval
+replaces the held value at once, and the held value is let go once it is
+older than ``gyro.rate_window_s`` (the next interval's then stands): a
+manoeuvre widens the estimate from its first rough interval, keeps it wide
+while it lasts, and lets it go a window after it. Only a stream whose
+sample interval (low-passed over the rate window) is longer than
+``gyro.smooth_interval_s`` (30 ms) counts it: sampled faster, the rate's
+path between two samples is the one they show (an IMU's anti-alias filter
+keeps the integral of what it smooths), and a change of slope there is the
+rate the samples already follow; a dropout in a fast stream is one long
+interval, not a slow stream. Counted at 286 Hz, BROAD's tapping trial took
 its taps for unseen motion, trusted the tapped accelerometer more, and went
-from 1.16 to 1.52 deg; BROAD and the logs in logs/ (200-400 Hz) now
-replay to the same bytes as without it. On a ground station's log at the
+from 1.16 to 1.52 deg; BROAD and the logs in logs/ (200-400 Hz) replay to
+the same bytes as without it. On a ground station's log at the
 default stream rates through the simulated multirotor's aggressive
 manoeuvres (``tests/test_fuser_low_rate_honesty.py``, against the
 simulator's attitude): 54.5 deg off reporting 9.0 before, the truth in the
-90 % region 10 % of the time there and 71 % over the flight; 44.0 reporting
-38.8 with it, 59 % and 88 %.
+90 % region 10 % of the time there and 71 % over the flight; 43.9 reporting
+39.2 with it, 59 % and 88 %.
 
 **Saturation.** A sample at or beyond ``gyro.saturation_fraction`` of the
 range on any axis says only that the rate is out of range (or the sensor
@@ -155,10 +157,12 @@ def _merged(params: np.record, imu: np.ndarray, after: bool, after_ns: int) -> t
 
 
 @njit(cache=True, nogil=True)
-def rate_walk2(params: np.record, track: np.record) -> float:
-    """The rate walk's intensity^2 (rad^2/s^3) for a hold after the track's last sample: the configured one, or
-    what its last interval showed if rougher (module docstring); ``params`` the ``gyro`` group."""
-    return max(params.rate_walk_rad_s_rt_s * params.rate_walk_rad_s_rt_s, track.walk2_rad2_s3)
+def rate_walk2(params: np.record, track: np.record, now_ns: int) -> float:
+    """The rate walk's intensity^2 (rad^2/s^3) for a hold after the track's last sample, at ``now_ns``: the
+    configured one, or the roughness the track holds if rougher and not older than the rate window (module
+    docstring); ``params`` the ``gyro`` group."""
+    held = track.walk2_rad2_s3 if now_ns - track.walk2_ns <= round(params.rate_window_s * 1e9) else 0.0
+    return max(params.rate_walk_rad_s_rt_s * params.rate_walk_rad_s_rt_s, held)
 
 
 @njit(cache=True, nogil=True)
@@ -235,9 +239,11 @@ def integrate_gyro(params: np.record, gyro: np.record, imu: np.ndarray, tick_sta
             z += half * (rate[2] + last_rate[2]) - held[2]
             known_ns += t - covered_ns
             slope = ((rate[0] - last_rate[0]) / h, (rate[1] - last_rate[1]) / h, (rate[2] - last_rate[2]) / h) if h > 0.0 else vec3.ZERO
-            if has_slope and h > params.smooth_interval_s:  # the roughest of the window's, kept until older (module docstring)
+            if t - shown2_ns > window_ns:  # the held roughness is older than the window: let go (module docstring)
+                shown2 = 0.0
+            if has_slope and interval > params.smooth_interval_s:  # a stream slower than smooth: its roughness, peak-held
                 now2 = _shown_walk2(slope, h, last_slope, last_h_s)
-                if now2 >= shown2 or t - shown2_ns > window_ns:
+                if now2 >= shown2:
                     shown2, shown2_ns = now2, t
             closed += max(walk2, shown2) * (h * h * h) / 12.0
             integrated, last_slope, last_h_s = h > 0.0, slope, h
@@ -265,7 +271,7 @@ def integrate_gyro(params: np.record, gyro: np.record, imu: np.ndarray, tick_sta
     track.has_interval_s, track.interval_s, track.saturated = has_interval, interval_s, last_saturated
     track.has_slope, track.slope_h_s, track.walk2_rad2_s3, track.walk2_ns = has_slope, last_h_s, shown2, shown2_ns
     vec3.store(track.slope_rad_s2, last_slope)
-    hold_walk2 = rate_walk2(params, track)
+    hold_walk2 = rate_walk2(params, track, tick_end_ns)
     if last_saturated:
         saturated_ns += tick_end_ns - covered_ns
         vec3.store(track.held_rad, vec3.ZERO)
