@@ -66,7 +66,7 @@ from drivers.euler import quaternion_from_euler
 from drivers.samples import GnssSample
 from drivers.timebase import MAX_TIME_NS
 
-from .importers import DEFAULT_FIELD_NED_GAUSS, MAVLINK_SOURCE, NO_FIELD_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest
+from .importers import DEFAULT_FIELD_NED_GAUSS, MAVLINK_SOURCE, NO_FIELD_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest, rest_field_source
 
 __all__ = ["read_dataflash"]
 
@@ -104,7 +104,7 @@ def _ekf_name(att_active: list[int], params: dict) -> str:
     """Whose attitude ATT is: ATT.AEKF (newer logs), else the AHRS_EKF_TYPE / AHRS_EKF_USE parameters."""
     if att_active:
         return _EKF_NAMES.get(Counter(att_active).most_common(1)[0][0], "AHRS")
-    if "AHRS_EKF_TYPE" in params:
+    if "AHRS_EKF_TYPE" in params and math.isfinite(params["AHRS_EKF_TYPE"]):  # (a damaged log's may be NaN)
         return _EKF_NAMES.get(int(params["AHRS_EKF_TYPE"]), "AHRS")
     if "AHRS_EKF_USE" in params:
         return "EKF1" if params["AHRS_EKF_USE"] else "DCM"
@@ -229,7 +229,7 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
         damage = f" (DFReader skipped {skipped['corrupt_bytes']:,} corrupt bytes: a damaged one?)" if skipped["corrupt_bytes"] else ""
         raise ValueError(f"{path} has no IMU records: not an ArduPilot DataFlash log, or one without IMU logging{damage}")
     data = {k: np.array(v, dtype=float) for k, v in rows.items() if k.startswith(("imu", "mag"))}
-    t0 = int(data[f"imu{instances[0]}"][0, 0]) + round(start_s * 1e9)
+    t0 = int(data[f"imu{instances[0]}"][:, 0].min()) + round(start_s * 1e9)  # the earliest: a damaged first record's may lie ahead
     t1 = None if duration_s is None else t0 + round(duration_s * 1e9)
 
     def inside(t: int) -> bool:
@@ -266,7 +266,7 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
         rest = (primary.t_ns < primary.t_ns[0] + round(field_rest_s * 1e9)) & ~np.isnan(primary.mag[:, 0])
         field_ned = field_from_rest(primary.accel[rest], primary.mag[rest])
         if field_ned is not None:
-            field_source = f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)"
+            field_source = rest_field_source(field_rest_s)
     seconds = (primary.t_ns[-1] - primary.t_ns[0]) * 1e-9
     rates = ", ".join(f"{len(s.t_ns) / max(seconds, 1e-9):.0f} Hz" for s in imus)
     return SensorData(

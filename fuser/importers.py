@@ -92,6 +92,7 @@ import contextlib
 import io
 import math
 import os
+import re
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -130,6 +131,11 @@ __all__ = [
 DEFAULT_FIELD_NED_GAUSS = MagSettings().fallback_field_ned_gauss
 """The reference field written for a log that gives none (the fuser's own fallback)."""
 NO_FIELD_SOURCE = "none in the log: the default"
+
+
+def rest_field_source(field_rest_s: float) -> str:
+    """What a reference field measured by :func:`field_from_rest` is called in the metadata."""
+    return f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)"
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -181,7 +187,7 @@ class SensorData:
     attribution: str
     source: str
     mag_field_ned_gauss: tuple[float, float, float]
-    field_source: str = "mean of the first 2 s at rest (norm, dip; declination 0)"
+    field_source: str = rest_field_source(2.0)
     attitude_stream: bool = False  # also send ref_q as the autopilot's attitude messages
     attitude_message: str = "ATTITUDE_QUATERNION"  # PX4's; ArduPilot sends ATTITUDE
     gnss: list[GnssSample] = field(default_factory=list)  # fixes, in time order
@@ -294,7 +300,7 @@ def read_broad(path: str | Path, start_s: float = 0.0, duration_s: float | None 
         attribution=BROAD_ATTRIBUTION,
         source=f"BROAD trial {Path(path).stem}, samples {i0}..{i1} of {n} at {fs:.3f} Hz",
         mag_field_ned_gauss=field_ned or DEFAULT_FIELD_NED_GAUSS,
-        field_source=f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)" if field_ned else NO_FIELD_SOURCE,
+        field_source=rest_field_source(field_rest_s) if field_ned else NO_FIELD_SOURCE,
         extra={"movement": movement[sl], "index": np.arange(i0, i1), "q_es": q_es[sl]},
     )
 
@@ -317,14 +323,16 @@ def field_from_gnss(fixes: list[GnssSample], unix_time_s: float | None) -> tuple
     return None
 
 
-def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None) -> tuple[list[GnssSample], float | None]:
+def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None, skipped: Counter) -> tuple[list[GnssSample], float | None]:
     """GnssSamples of ``vehicle_gps_position`` (else ``sensor_gps``) within the cut, and the UTC time of
-    the first 3-D fix that has one (seconds since 1970), for the magnetic model's date."""
-    d = topics.get("vehicle_gps_position") or topics.get("sensor_gps")
+    the first 3-D fix that has one (seconds since 1970), for the magnetic model's date; a fix whose time is not
+    one is counted in ``skipped``."""
+    name = "vehicle_gps_position" if "vehicle_gps_position" in topics else "sensor_gps"
+    d = topics.get(name)
     if d is None:
         return [], None
-    stamp = d["timestamp_sample"] if "timestamp_sample" in d and np.all(np.asarray(d["timestamp_sample"]) > 0) else d["timestamp"]
-    t_us = np.asarray(stamp, dtype=np.int64)
+    stamp = "timestamp_sample" if "timestamp_sample" in d and np.all(np.asarray(d["timestamp_sample"]) > 0) else "timestamp"
+    t_us, valid = _ulog_times_us(d, name, skipped, stamp)
     if "latitude_deg" in d:  # newer firmware
         lat, lon, alt = (np.asarray(d[k], dtype=float) for k in ("latitude_deg", "longitude_deg", "altitude_msl_m"))
     else:  # 1e-7 degrees and millimetres
@@ -335,7 +343,7 @@ def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None) -> tuple[list[GnssSam
     accuracy = np.asarray(d["s_variance_m_s"], dtype=float)
     utc = np.asarray(d.get("time_utc_usec", np.zeros(len(fix))), dtype=np.int64)
     fixes, first_utc = [], None
-    for i in np.flatnonzero((t_us >= t0_us) & (t_us < t1_us if t1_us is not None else True)):
+    for i in np.flatnonzero(valid & (t_us >= t0_us) & (t_us < t1_us if t1_us is not None else True)):
         has_position = fix[i] >= 2
         fixes.append(GnssSample(
             int(t_us[i]) * 1000, int(fix[i]),
@@ -350,23 +358,25 @@ def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None) -> tuple[list[GnssSam
 
 
 def _ulog(path: str | Path, topics: list[str]) -> tuple[Any, Counter]:
-    """pyulog's reading of ``topics`` and what it reported skipping (it reports damage with print(): counted
-    here instead, as ``bad_record`` and ``corrupt_data``)."""
+    """pyulog's reading of ``topics`` and what it reported (it reports damage with print(), silenced here):
+    ``corrupt_data`` 1 if it found corrupt data (and skipped to the next sync), ``unknown_message_id`` the ids
+    of data it found no subscription for (it says so once per id, not per record)."""
     from pyulog import ULog
 
     chatter = io.StringIO()
     with contextlib.redirect_stdout(chatter):
         ulog = ULog(str(path), topics)
     text = chatter.getvalue()
-    skipped = Counter({"bad_record": text.count("no subscription found") + text.count("unknown message type"),
-                       "corrupt_data": text.count("File corruption detected")})
+    skipped = Counter({"corrupt_data": int(bool(ulog.file_corruption or "corruption detected" in text)),
+                       "unknown_message_id": len(set(re.findall(r"no subscription found for message id (\d+)", text)))})
     return ulog, +skipped
 
 
-def _ulog_times_us(d: dict, topic: str, skipped: Counter) -> tuple[np.ndarray, np.ndarray]:
-    """A topic's ``timestamp`` (us since boot) and which of them are times at all: in [0, MAX_TIME_NS) as ns
-    (a damaged record's may be anything; the others counted as ``time_out_of_range_<topic>``)."""
-    t_us = np.asarray(d["timestamp"]).astype(np.int64)  # uint64: a damaged one beyond 2^63 turns negative
+def _ulog_times_us(d: dict, topic: str, skipped: Counter, field: str = "timestamp") -> tuple[np.ndarray, np.ndarray]:
+    """A topic's times (``field``, us since boot) and which of them can be times at all: in [0, MAX_TIME_NS) as
+    ns (a damaged record's may be anything; the others counted as ``time_out_of_range_<topic>``). A damaged time
+    inside that range is placed where it says: the decoder's time checks take it from there."""
+    t_us = np.asarray(d[field]).astype(np.int64)  # uint64: a damaged one beyond 2^63 turns negative
     valid = (t_us >= 0) & (t_us < MAX_TIME_NS // NS_PER_US)
     if not np.all(valid):
         skipped[f"time_out_of_range_{topic}"] += int(np.count_nonzero(~valid))
@@ -385,7 +395,7 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
     t_us, valid = _ulog_times_us(sc, "sensor_combined", skipped)
     if not np.any(valid):
         raise ValueError(f"{Path(path).name}: no sensor_combined record has a time since boot")
-    t0 = int(t_us[valid][0] + start_s * 1e6)
+    t0 = int(t_us[valid].min() + start_s * 1e6)  # the earliest: a damaged first record's time may lie ahead
     t1 = None if duration_s is None else t0 + int(duration_s * 1e6)
     keep = valid & (t_us >= t0) & (t_us < t1 if t1 is not None else True)
     gyro = _ulog_vec(sc, "gyro_rad")[keep]
@@ -394,7 +404,7 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
     va_t, va_valid = _ulog_times_us(va, "vehicle_attitude", skipped)
     va_keep = va_valid & (va_t >= t0) & (va_t < t1 if t1 is not None else True)
     ref_q = np.column_stack([np.asarray(va[f"q[{i}]"], dtype=float) for i in range(4)])[va_keep]
-    gnss, first_utc = _px4_gnss(topics, t0, t1)
+    gnss, first_utc = _px4_gnss(topics, t0, t1, skipped)
     mag_field, field_source = None, "EKF2 earth-field state (estimator_status.states[16:19], median)"
     if "estimator_status" in topics and "states[18]" in topics["estimator_status"]:
         es = topics["estimator_status"]
@@ -407,7 +417,7 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
     if mag_field is None and mag is not None:
         rest = t_us[keep] < t0 + field_rest_s * 1e6
         mag_field = field_from_rest(accel[rest], mag[rest])
-        field_source = f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)" if mag_field else NO_FIELD_SOURCE
+        field_source = rest_field_source(field_rest_s) if mag_field else NO_FIELD_SOURCE
     return SensorData(
         imus=[ImuStream(0, t_us[keep] * 1000, gyro, accel, mag)],
         ref_t_ns=va_t[va_keep] * 1000,
@@ -435,6 +445,11 @@ def _events(data: SensorData) -> list[tuple[int, int, int, int]]:
     return sorted(events)
 
 
+def _is_rotation(q: np.ndarray) -> bool:
+    """A quaternion that normalises to a rotation (not zeros, not NaN or infinite: a damaged record's)."""
+    return 0.0 < float(np.linalg.norm(q)) < math.inf
+
+
 def _message(data: SensorData, kind: int) -> str:
     """The MAVLink message an event of ``kind`` travels as."""
     return "HIGHRES_IMU" if kind == _IMU else data.attitude_message if kind == _ATTITUDE else GNSS_MESSAGE
@@ -449,7 +464,7 @@ def _sample(data: SensorData, kind: int, stream: int, i: int, t_ns: int) -> obje
         return ImuSample(t_ns, tuple(float(v) for v in imu.gyro[i]), tuple(float(v) for v in imu.accel[i]), mag, source)  # type: ignore[arg-type]
     if kind == _ATTITUDE:
         q = data.ref_q[i]
-        if not 0.0 < float(np.linalg.norm(q)) < math.inf:  # zeros or NaN: no rotation to send
+        if not _is_rotation(q):
             raise UnencodableSample(f"attitude at {t_ns} ns is not a rotation: {q.tolist()}")
         return AttitudeSample(t_ns, tuple(float(v) for v in quat.normalize(q)), MAVLINK_SOURCE)  # type: ignore[arg-type]
     return data.gnss[i]
@@ -470,19 +485,25 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     out = Path(out)
     encoder = MavlinkEncoder(system=1, component=1)
     decoder = MavlinkDecoder()
-    field_ned = tuple(round(float(v), 6) for v in data.mag_field_ned_gauss)
+    field_ned, field_source = tuple(round(float(v), 6) for v in data.mag_field_ned_gauss), data.field_source
+    skipped = Counter(data.skipped)
+    try:  # the reference must be one the configuration takes (a damaged log's EKF2 state or readings may not be)
+        MagSettings(field_ned_gauss=field_ned)  # type: ignore[arg-type]
+    except ValueError:
+        skipped["field_out_of_range"] += 1
+        field_ned, field_source = DEFAULT_FIELD_NED_GAUSS, f"{NO_FIELD_SOURCE} ({field_source}: {list(field_ned)} is not a field)"
     metadata = {
         "source": data.source,
         "attribution": data.attribution,
         "reference": data.reference,
         "frames": "inputs body FRD; /truth/pose body FRD -> world NED, (w, x, y, z); see fuser/importers.py",
         "mag_field_ned_gauss": ",".join(f"{v:.6f}" for v in field_ned),
-        "mag_field_source": data.field_source,
+        "mag_field_source": field_source,
     }
-    if data.skipped:
-        metadata["skipped"] = _listed(data.skipped)
+    if skipped:
+        metadata["skipped"] = _listed(skipped)
+    encoded_skips = Counter(skipped)
     counts = {ImuSample: 0, AttitudeSample: 0, GnssSample: 0}
-    skipped = Counter(data.skipped)
     truth = 0
     with McapRecorder(out, metadata=metadata) as rec:
         events = _events(data)
@@ -496,10 +517,10 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
                 rec.write_sample(decoded, decoded.t_ns + LINK_LATENCY_NS)
                 counts[type(decoded)] += 1
         for t_ns, q in zip(data.ref_t_ns, data.ref_q):
-            if 0.0 < float(np.linalg.norm(q)) < math.inf:  # unknown (NaN rows) or damaged (zeros): no reference there
+            if _is_rotation(q):  # not where unknown (NaN rows) or damaged
                 rec.write_truth(int(t_ns), tuple(float(v) for v in quat.normalize(q)))  # type: ignore[arg-type]
                 truth += 1
-        if skipped != Counter(data.skipped):  # records the encoding left out too: the metadata again, complete (the last wins)
+        if skipped != encoded_skips:  # records the encoding left out too: the metadata again, complete (the last wins)
             rec.add_metadata("bingham_fuser", metadata | {"skipped": _listed(skipped)})
     cfg = None
     if config_path is not None:

@@ -8,9 +8,9 @@ from Python with other argument types than the tick does, in two workers at once
 forced runs of two processes compiling 30 kernels in two signatures each: every result right), but a property
 test failed once in CI and once here with a cold cache and two workers, and neither reproduced warm or alone;
 this is a way to get there that costs nothing to close. Each worker keeps its own cache (``.numba_cache/gw0``,
-``gw1``; ``NUMBA_CACHE_DIR`` set here, before anything imports numba, and inherited by the processes a test
-starts). The product is not exposed: it calls each kernel with one signature (``tests/test_warmup.py``), and
-processes compiling the same signature write the same entry.
+``gw1``, or ``gw0``, ``gw1`` under an exported ``NUMBA_CACHE_DIR``), set here before anything imports numba and
+inherited by the processes a test starts. The product is not exposed: it calls each kernel with one signature
+(``tests/test_warmup.py``), and processes compiling the same signature write the same entry.
 
 **Hypothesis.** ``ci`` (the default) makes every property test draw the same examples on every run and every machine
 (``derandomize``), so a test that passed here passes in CI and a failure there is reproducible here. It
@@ -33,8 +33,9 @@ from pathlib import Path
 
 from hypothesis import Phase, settings
 
-if "PYTEST_XDIST_WORKER" in os.environ:
-    os.environ.setdefault("NUMBA_CACHE_DIR", str(Path(__file__).resolve().parent.parent / ".numba_cache" / os.environ["PYTEST_XDIST_WORKER"]))
+if "PYTEST_XDIST_WORKER" in os.environ:  # under a cache directory given in the environment, each worker its own below it
+    _cache = Path(os.environ.get("NUMBA_CACHE_DIR") or Path(__file__).resolve().parent.parent / ".numba_cache")
+    os.environ["NUMBA_CACHE_DIR"] = str(_cache / os.environ["PYTEST_XDIST_WORKER"])
 
 settings.register_profile(
     "ci", derandomize=True, print_blob=True, phases=(Phase.explicit, Phase.reuse, Phase.generate)

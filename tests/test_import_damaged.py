@@ -100,8 +100,8 @@ def test_a_damaged_ulog_imports_the_rest_and_counts_what_it_left_out(tmp_path):
     pytest.importorskip("pyulog")
     _ulog(tmp_path / "damaged.ulg")
     s = import_log(tmp_path / "damaged.ulg", tmp_path / "out.mcap")
-    assert s.skipped == {"time_out_of_range_sensor_combined": 1, "time_out_of_range_vehicle_attitude": 1, "bad_record": 1,
-                         "out_of_range_ATTITUDE_QUATERNION": 1}
+    assert s.skipped == {"time_out_of_range_sensor_combined": 1, "time_out_of_range_vehicle_attitude": 1, "unknown_message_id": 1,
+                         "corrupt_data": 1, "out_of_range_ATTITUDE_QUATERNION": 1}  # pyulog calls the unknown id corrupt
     assert s.attitude == 148 and s.truth == 148
     assert s.mag_field_ned_gauss == pytest.approx(FIELD_NED_GAUSS, abs=1e-6)  # float32 values; the 3e5 one left out
     assert s.decoder_stats["mag_out_of_range"] == 1  # and its sample refused by the decoder, as any other would be
@@ -171,7 +171,8 @@ def test_a_dataflash_log_whose_imu_format_is_damaged_says_it_may_be_damaged(tmp_
 def test_whatever_the_damage_the_reader_refuses_the_file_or_the_import_completes(fmt, damage, cut, tmp_path):
     """Random bytes overwritten and the file cut short: the log's reader (pyulog, DFReader, each with the
     project's checks) may refuse the file, which the command line reports as one line naming it; once read,
-    writing the MCAP never raises (found by hand before: struct.error, OverflowError, a zero quaternion)."""
+    writing the MCAP never raises (found by hand before: struct.error, OverflowError, a zero quaternion). That is
+    the check; the last assertion only says that something was imported or counted."""
     if fmt == "px4":
         pytest.importorskip("pyulog")
     path = tmp_path / ("log.ulg" if fmt == "px4" else "log.bin")
@@ -187,3 +188,17 @@ def test_whatever_the_damage_the_reader_refuses_the_file_or_the_import_completes
         return
     summary = write_mcap(sensor_data, tmp_path / "out.mcap")
     assert summary.imu + sum(summary.skipped.values()) + sum(summary.decoder_stats.values()) > 0
+
+
+def test_a_reference_field_no_magnetometer_reads_is_replaced_by_the_default_and_counted(tmp_path):
+    """An EKF2 field state or readings a damaged log made absurd: the TOML would hold a field the configuration
+    refuses (tests/test_config.py), so the default goes in and the metadata says why."""
+    t = np.arange(40, dtype=np.int64) * 5_000_000
+    imu = ImuStream(0, t, np.zeros((40, 3)), np.tile(GRAVITY, (40, 1)), None)
+    data = SensorData([imu], t, np.tile([1.0, 0.0, 0.0, 0.0], (40, 1)), "truth", "none", "test", (1.5e11, 0.0, 3.1e11),
+                      field_source="EKF2 earth-field state")
+    s = write_mcap(data, tmp_path / "out.mcap", tmp_path / "out.toml")
+    assert s.skipped == {"field_out_of_range": 1} and s.mag_field_ned_gauss == (0.21, 0.0, 0.43)
+    meta = read_log(tmp_path / "out.mcap").metadata["bingham_fuser"]
+    assert meta["mag_field_source"].startswith("none in the log: the default (EKF2 earth-field state: [")
+    assert "field_ned_gauss = [0.21, 0.0, 0.43]" in (tmp_path / "out.toml").read_text()
