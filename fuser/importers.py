@@ -128,6 +128,8 @@ __all__ = [
     "write_mcap",
 ]
 
+os.environ.setdefault("MAVLINK20", "1")
+
 DEFAULT_FIELD_NED_GAUSS = MagSettings().fallback_field_ned_gauss
 """The reference field written for a log that gives none (the fuser's own fallback)."""
 NO_FIELD_SOURCE = "none in the log: the default"
@@ -137,7 +139,6 @@ def rest_field_source(field_rest_s: float) -> str:
     """What a reference field measured by :func:`field_from_rest` is called in the metadata."""
     return f"mean of the first {field_rest_s:g} s at rest (norm, dip; declination 0)"
 
-os.environ.setdefault("MAVLINK20", "1")
 
 BROAD_ATTRIBUTION = (
     "BROAD dataset: D. Laidig, M. Caruso, A. Cereatti, T. Seel, 'BROAD - A Benchmark for Robust Inertial "
@@ -502,16 +503,17 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     }
     if skipped:
         metadata["skipped"] = _listed(skipped)
-    encoded_skips = Counter(skipped)
+    skipped_before_encoding = Counter(skipped)
     counts = {ImuSample: 0, AttitudeSample: 0, GnssSample: 0}
     truth = 0
     with McapRecorder(out, metadata=metadata) as rec:
         events = _events(data)
         for t_ns, kind, stream, i in progress_bar(events, len(events), "import", " messages", progress):
+            message = _message(data, kind)
             try:
-                frame = encoder.encode(_sample(data, kind, stream, i, t_ns), _message(data, kind))  # type: ignore[arg-type]
+                frame = encoder.encode(_sample(data, kind, stream, i, t_ns), message)  # type: ignore[arg-type]
             except UnencodableSample:  # a damaged record's time or value: counted, the rest goes on
-                skipped[f"out_of_range_{_message(data, kind)}"] += 1
+                skipped[f"out_of_range_{message}"] += 1
                 continue
             for decoded in decoder.feed(frame):
                 rec.write_sample(decoded, decoded.t_ns + LINK_LATENCY_NS)
@@ -520,7 +522,7 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
             if _is_rotation(q):  # not where unknown (NaN rows) or damaged
                 rec.write_truth(int(t_ns), tuple(float(v) for v in quat.normalize(q)))  # type: ignore[arg-type]
                 truth += 1
-        if skipped != encoded_skips:  # records the encoding left out too: the metadata again, complete (the last wins)
+        if skipped != skipped_before_encoding:  # records the encoding left out too: the metadata again, complete (the last wins)
             rec.add_metadata("bingham_fuser", metadata | {"skipped": _listed(skipped)})
     cfg = None
     if config_path is not None:
