@@ -156,11 +156,17 @@ def _largest_first(tasks: Sequence[LogTask]) -> list[LogTask]:
 def _in_processes(tasks: Sequence[LogTask], jobs: int, done: Callable[[LogResult], None]) -> None:
     """Local worker processes (spawned). A worker that dies (killed, out of memory) breaks the whole pool,
     so each task it took down is run again alone in a fresh process: only a log that kills its own
-    process fails."""
+    process fails. A worker can die while the pool is still starting the others: the tasks not yet
+    submitted then go the same way."""
     spawn = mp.get_context("spawn")
     broken: list[LogTask] = []
     with ProcessPoolExecutor(max_workers=jobs, mp_context=spawn) as pool:
-        futures = {pool.submit(run_task, t): t for t in _largest_first(tasks)}
+        futures = {}
+        for task in _largest_first(tasks):
+            try:
+                futures[pool.submit(run_task, task)] = task
+            except (BrokenProcessPool, OSError):  # broken already, or while spawning a worker ("handle is closed")
+                broken.append(task)
         for future in as_completed(futures):
             try:
                 done(future.result())

@@ -241,6 +241,35 @@ def test_a_killed_worker_costs_no_log(logs, reference, tmp_path):
         assert Path(r.output).read_bytes() == reference[log].read_bytes()
 
 
+def test_a_worker_that_dies_while_the_pool_starts_the_others_costs_no_log(logs, reference, tmp_path, monkeypatch):
+    """The killed-worker test once failed so in a clean clone: the worker was killed while the pool was spawning
+    the second, and submit raised ``OSError: handle is closed`` out of run_batch. Here the second submit raises it
+    every time: that log is replayed alone, like one a dying worker took down."""
+    real = batch.ProcessPoolExecutor
+
+    class BreaksWhileStarting(real):  # type: ignore[misc, valid-type]
+        pools = 0
+
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            BreaksWhileStarting.pools += 1
+            self._first_pool, self._submitted = BreaksWhileStarting.pools == 1, 0
+
+        def submit(self, *args, **kwargs):
+            self._submitted += 1
+            if self._first_pool and self._submitted == 2:
+                raise OSError("handle is closed")
+            return super().submit(*args, **kwargs)
+
+    monkeypatch.setattr(batch, "ProcessPoolExecutor", BreaksWhileStarting)
+    inputs = logs["good"]
+    results = run_batch(inputs, tmp_path / "out", FuserConfig(), jobs=2)
+    assert [r.ok for r in results] == [True, True], [r.reason for r in results]
+    assert BreaksWhileStarting.pools == 2  # the pool, and the one the broken log ran alone in
+    for r, log in zip(results, inputs):
+        assert Path(r.output).read_bytes() == reference[log].read_bytes()
+
+
 def test_a_reference_outside_the_flight_scores_nothing_and_fails_nothing(tmp_path):
     """Truth recorded 1000 s after the flight (another clock): the log replays, with no error to report."""
     from fuser.record import McapRecorder
