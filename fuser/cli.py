@@ -650,6 +650,9 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     print(f"import: {s.imu} IMU + {s.attitude} attitude + {s.gnss} GNSS messages through MAVLink, {s.truth} reference attitudes -> {s.path}")
     if s.skipped:
         print(f"not imported: {s.skipped}")
+    if s.skipped.get("incomplete_tail_bytes"):
+        _warn(f"{args.source} ends with {s.skipped['incomplete_tail_bytes']:,} bytes that are not a whole record: cut short "
+              "(power lost while logging, a download that stopped?) or garbage after the last record; imported what is there")
     print(f"reference field (N, E, D gauss): {s.mag_field_ned_gauss}" + (f"; replay with --config {s.config_path}" if s.config_path else ""))
     refused = {k: v for k, v in s.decoder_stats.items() if k not in NOT_REFUSALS and v}
     if refused:

@@ -37,7 +37,10 @@ LogStructure.h give them; DFReader applies the format characters' scale
   ``/truth/pose`` as the reference (metadata ``reference`` says whose, and
   that it is NOT ground truth) and is sent as ArduPilot's ATTITUDE stream.
 * Corrupt bytes between records (SD-card logs have them) are skipped by
-  DFReader and counted; a record whose layout lacks a field the import
+  DFReader and counted; the bytes after the last whole record, which
+  DFReader passes over in silence, are counted as ``incomplete_tail_bytes``
+  (a log cut short: power lost while it was written, a download that
+  stopped; or the garbage some old logs end with); a record whose layout lacks a field the import
   needs (the earliest GPS layout has no boot time ``T``) is counted as
   ``unreadable_<name>``; a GPS layout without ``VZ`` gives no vertical
   velocity. A record whose time is not a time since boot
@@ -152,8 +155,10 @@ def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
         log.rewind()
         chatter.seek(0)
         chatter.truncate()  # the indexer's complaints; the parse below reports the same bytes once
+        whole_to = log.offset  # where the last whole record ends
         try:
             while (m := log.recv_msg()) is not None:
+                whole_to = log.offset
                 name = m.get_type()
                 if name in _TYPES:
                     try:
@@ -161,6 +166,8 @@ def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
                     except (KeyError, TypeError, ValueError):  # a layout this importer does not know
                         skipped[f"unreadable_{name}"] += 1
             params = dict(log.params)
+            if log.data_len > whole_to:  # DFReader stops silently inside a record it cannot read whole
+                skipped["incomplete_tail_bytes"] = log.data_len - whole_to
         finally:
             log.close()
     text = chatter.getvalue()

@@ -93,6 +93,7 @@ import io
 import math
 import os
 import re
+import struct
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -358,18 +359,51 @@ def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None, skipped: Counter) -> 
     return fixes, first_utc
 
 
+ULOG_FILE_HEADER_BYTES = 16
+"""A ULog's file header (magic, version, start time): its messages follow."""
+ULOG_MESSAGE_HEADER = struct.Struct("<HB")
+"""Every ULog message's header: payload size (bytes), message type."""
+ULOG_MESSAGE_TYPES = frozenset(b"BFIMPQARDLCSO")
+"""The message types of the ULog format (flag bits, format, info, info multiple, parameter, parameter default,
+add and remove subscription, data, logging, tagged logging, sync, dropout)."""
+
+
+def ulog_incomplete_tail_bytes(path: str | Path, start: int = ULOG_FILE_HEADER_BYTES) -> int | None:
+    """How many bytes at the end of a ULog do not make a whole message: 0 for a log that ends where its last
+    message does; for a log cut short (power lost while it was written, a download that stopped), the last
+    message's bytes that are there. pyulog stops at such a message in silence. Walks the messages' own sizes
+    from ``start`` (a message boundary: the first after the file header, or the last appended-data offset).
+    None when the walk meets a type that is no ULog message's: damage has broken the framing there, and where
+    the file ends inside a message cannot be told."""
+    with open(path, "rb") as f:
+        data = f.read()
+    at = min(start, len(data))
+    while at + ULOG_MESSAGE_HEADER.size <= len(data):
+        size, kind = ULOG_MESSAGE_HEADER.unpack_from(data, at)
+        if kind not in ULOG_MESSAGE_TYPES:
+            return None
+        end = at + ULOG_MESSAGE_HEADER.size + size
+        if end > len(data):
+            break
+        at = end
+    return len(data) - at
+
+
 def _ulog(path: str | Path, topics: list[str]) -> tuple[Any, Counter]:
     """pyulog's reading of ``topics`` and what it reported (it reports damage with print(), silenced here):
     ``corrupt_data`` 1 if it found corrupt data (and skipped to the next sync), ``unknown_message_id`` the ids
-    of data it found no subscription for (it says so once per id, not per record)."""
+    of data it found no subscription for (it says so once per id, not per record); and
+    ``incomplete_tail_bytes`` (:func:`ulog_incomplete_tail_bytes`; not counted where damage hides it)."""
     from pyulog import ULog
 
     chatter = io.StringIO()
     with contextlib.redirect_stdout(chatter):
         ulog = ULog(str(path), topics)
     text = chatter.getvalue()
+    appended = [offset for offset in ulog._appended_offsets if offset > 0] if ulog.has_data_appended else []  # pyulog keeps the offsets private
     skipped = Counter({"corrupt_data": int(bool(ulog.file_corruption or "corruption detected" in text)),
-                       "unknown_message_id": len(set(re.findall(r"no subscription found for message id (\d+)", text)))})
+                       "unknown_message_id": len(set(re.findall(r"no subscription found for message id (\d+)", text))),
+                       "incomplete_tail_bytes": ulog_incomplete_tail_bytes(path, max(appended, default=ULOG_FILE_HEADER_BYTES)) or 0})
     return ulog, +skipped
 
 

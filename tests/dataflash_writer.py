@@ -29,6 +29,8 @@ class DataFlashWriter:
     def __init__(self) -> None:
         self.data = bytearray()
         self._types: dict[str, tuple[int, str, list[str]]] = {}
+        self.last_record_at = 0
+        """Where the last record written by :meth:`write` starts (to cut a log inside it)."""
         self.declare(FMT_TYPE, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns")  # a log begins by describing FMT
 
     def declare(self, type_id: int, name: str, fmt: str, columns: str) -> None:
@@ -56,6 +58,7 @@ class DataFlashWriter:
                 packed += struct.pack("<" + code, int(round(float(value) * scale)))
         if set(values) - set(names):
             raise ValueError(f"{name} has no column(s) {sorted(set(values) - set(names))}")
+        self.last_record_at = len(self.data)
         self.data += packed
 
     def raw(self, data: bytes) -> None:

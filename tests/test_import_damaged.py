@@ -36,9 +36,10 @@ BEYOND_INT64_US = 2**64 - 2**11  # a float64 exactly, as the DataFlash writer pa
 SOURCE = SourceId("mavlink", 1, 1, 0)
 
 
-def _dataflash(path: Path) -> None:
+def _dataflash(path: Path) -> int:
     """3 s at 200 Hz (IMU), 20 Hz (MAG), 5 Hz (2-D GPS fixes) and 25 Hz (ATT); damaged: an IMU record's time, a
-    MAG record at the int16's end (32.8 gauss) in the first 2 s, a GPS record's speed (NaN)."""
+    MAG record at the int16's end (32.8 gauss) in the first 2 s, a GPS record's speed (NaN). Returns where its
+    last record (an IMU record) starts."""
     w = DataFlashWriter()
     w.declare(76, "IMU", "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
     w.declare(80, "MAG", "QBhhhhhhhhhBI", "TimeUS,I,MagX,MagY,MagZ,OfsX,OfsY,OfsZ,MOX,MOY,MOZ,Health,S")
@@ -58,6 +59,7 @@ def _dataflash(path: Path) -> None:
         if k % 8 == 5:
             w.write("ATT", TimeUS=t_us + 300, DesRoll=0, Roll=0, DesPitch=0, Pitch=0, DesYaw=0, Yaw=0, ErrRP=0.0, ErrYaw=0.0, AEKF=3)
     path.write_bytes(bytes(w.data))
+    return w.last_record_at
 
 
 SENSOR_COMBINED = [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"), ("float[3]", "accelerometer_m_s2"),
@@ -65,10 +67,11 @@ SENSOR_COMBINED = [("uint64_t", "timestamp"), ("float[3]", "gyro_rad"), ("float[
 VEHICLE_ATTITUDE = [("uint64_t", "timestamp"), ("float[4]", "q")]
 
 
-def _ulog(path: Path, attitude: bool = True) -> None:
+def _ulog(path: Path, attitude: bool = True) -> int:
     """3 s of sensor_combined at 250 Hz and vehicle_attitude at 50 Hz; damaged: a sensor_combined record's time
     (beyond 2^63 us: negative as int64), a magnetometer reading of 3e5 gauss in the first 2 s, a vehicle_attitude
-    record's time and another's quaternion (zeros), and a data record for a message id nothing subscribed."""
+    record's time and another's quaternion (zeros), and a data record for a message id nothing subscribed.
+    Returns where its last message (a sensor_combined record) starts."""
     w = ULogWriter(start_us=1_000_000)
     w.topic("sensor_combined", SENSOR_COMBINED)
     if attitude:
@@ -84,6 +87,7 @@ def _ulog(path: Path, attitude: bool = True) -> None:
         if k == 600:
             w.data += struct.pack("<H", 11) + b"D" + struct.pack("<H", 999) + bytes(9)  # msg id 999: never subscribed
     path.write_bytes(bytes(w.data))
+    return w.last_message_at
 
 
 def test_a_damaged_dataflash_log_imports_the_rest_and_counts_what_it_left_out(tmp_path):
@@ -105,6 +109,70 @@ def test_a_damaged_ulog_imports_the_rest_and_counts_what_it_left_out(tmp_path):
     assert s.attitude == 148 and s.truth == 148
     assert s.mag_field_ned_gauss == pytest.approx(FIELD_NED_GAUSS, abs=1e-6)  # float32 values; the 3e5 one left out
     assert s.decoder_stats["mag_out_of_range"] == 1  # and its sample refused by the decoder, as any other would be
+
+
+@pytest.mark.parametrize("left", [1, 2, 3, 20])
+def test_a_dataflash_log_cut_inside_its_last_record_says_how_much_it_left(tmp_path, left):
+    """Power lost while the log was written: the file ends ``left`` bytes into its last record (inside the
+    3-byte header, or into the body). DFReader stops there in silence; the import counts the bytes, and imports
+    everything before them as it imports the whole log."""
+    last = _dataflash(tmp_path / "whole.bin")
+    (tmp_path / "cut.bin").write_bytes((tmp_path / "whole.bin").read_bytes()[: last + left])
+    whole = import_log(tmp_path / "whole.bin", tmp_path / "whole.mcap")
+    cut = import_log(tmp_path / "cut.bin", tmp_path / "cut.mcap")
+    assert "incomplete_tail_bytes" not in whole.skipped
+    assert cut.skipped == {**whole.skipped, "incomplete_tail_bytes": left}
+    assert cut.imu == whole.imu - 1 and cut.gnss == whole.gnss and cut.attitude == whole.attitude
+
+
+def test_the_command_line_warns_that_a_log_was_cut_short(tmp_path, capsys):
+    from fuser.cli import main
+
+    last = _dataflash(tmp_path / "whole.bin")
+    (tmp_path / "cut.bin").write_bytes((tmp_path / "whole.bin").read_bytes()[: last + 20])
+    assert main(["import", str(tmp_path / "cut.bin"), "-o", str(tmp_path / "cut.mcap")]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "cut short" in line]
+    assert warnings == [(f"bingham-fuser: warning: {tmp_path / 'cut.bin'} ends with 20 bytes that are not a whole record: cut short "
+                         "(power lost while logging, a download that stopped?) or garbage after the last record; imported what is there")]
+
+
+@pytest.mark.parametrize("left", [1, 2, 3, 20])
+def test_a_ulog_cut_inside_its_last_message_says_how_much_it_left(tmp_path, left):
+    """The same for a ULog (pyulog too stops there in silence)."""
+    pytest.importorskip("pyulog")
+    last = _ulog(tmp_path / "whole.ulg")
+    (tmp_path / "cut.ulg").write_bytes((tmp_path / "whole.ulg").read_bytes()[: last + left])
+    whole = import_log(tmp_path / "whole.ulg", tmp_path / "whole.mcap")
+    cut = import_log(tmp_path / "cut.ulg", tmp_path / "cut.mcap")
+    assert "incomplete_tail_bytes" not in whole.skipped
+    assert cut.skipped == {**whole.skipped, "incomplete_tail_bytes": left}
+    assert cut.imu == whole.imu - 1 and cut.attitude == whole.attitude
+
+
+SAMPLE_ULG = Path(__file__).resolve().parents[2] / "shared" / "data" / "px4" / "sample.ulg"
+
+
+@pytest.mark.skipif(not SAMPLE_ULG.is_file(), reason="../shared/data/px4/sample.ulg is not beside the repository")
+@pytest.mark.parametrize("fraction", [0.3, 0.7, 0.999])
+def test_a_real_ulog_cut_anywhere_loses_only_its_incomplete_tail(tmp_path, fraction):
+    """PX4's sample flight (pyulog's, BSD-3): whole, nothing is left over; cut anywhere, the bytes said to be left
+    over are exactly what pyulog, reading independently, cannot use: without them it reads the same records, and
+    a file that ends at the boundary the walk found has nothing left over."""
+    pyulog = pytest.importorskip("pyulog")
+    from fuser.importers import ulog_incomplete_tail_bytes
+
+    assert ulog_incomplete_tail_bytes(SAMPLE_ULG) == 0
+    data = SAMPLE_ULG.read_bytes()
+    cut = int(fraction * len(data))
+    (tmp_path / "cut.ulg").write_bytes(data[:cut])
+    left = ulog_incomplete_tail_bytes(tmp_path / "cut.ulg")
+    (tmp_path / "boundary.ulg").write_bytes(data[: cut - left])
+    assert 0 < left < cut and ulog_incomplete_tail_bytes(tmp_path / "boundary.ulg") == 0
+
+    def records(path: Path) -> dict:
+        return {(d.name, d.multi_id): len(d.data["timestamp"]) for d in pyulog.ULog(str(path), ["sensor_combined", "vehicle_attitude"]).data_list}
+
+    assert records(tmp_path / "cut.ulg") == records(tmp_path / "boundary.ulg")
 
 
 def test_a_ulog_without_the_attitude_topic_is_one_clear_error(tmp_path):

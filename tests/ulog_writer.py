@@ -23,6 +23,8 @@ class ULogWriter:
         self._message(b"B", bytes(16) + struct.pack("<3Q", 0, 0, 0))
         self._topics: dict[str, tuple[int, list[tuple[str, int, str]]]] = {}
         self._subscribed = False
+        self.last_message_at = 0
+        """Where the last data message written by :meth:`write` starts (to cut a log inside it)."""
 
     def _message(self, kind: bytes, payload: bytes) -> None:
         self.data += struct.pack("<H", len(payload)) + kind + payload
@@ -52,4 +54,5 @@ class ULogWriter:
             value = values[fname]
             code = _TYPES[base]
             payload += struct.pack(f"<{count}{code}", *value) if count else struct.pack("<" + code, value)
+        self.last_message_at = len(self.data)
         self._message(b"D", bytes(payload))
