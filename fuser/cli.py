@@ -502,14 +502,14 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         extra = _extra_outputs(stack, config, args)
         pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
         stop = _stop_on_signal()
-        if clock is not None:  # paced: the kernels compiled before the clock matters (fuser/warmup.py)
-            _warm_up(config)
+        _warm_up(config)  # paced, before the clock matters (fuser/warmup.py); at full speed, so the first run says it compiles
         flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
         seconds = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
         print(f"sim: {args.scenario} flight, {seconds:.0f} s at {'full speed' if args.speed <= 0 else f'{args.speed:g}x'}"
-              + (f", publishing on bingham_fuser/{config.vehicle}/attitude" if pub else "")
+              + (f", publishing on bingham_fuser/{config.vehicle}/attitude and .../status" if pub else "")
               + (f", recording {args.record}" if rec else ""), file=sys.stderr)
-        run = run_sim(pipeline, flight, args.transport, args.speed, ([rec.write_truth] if rec else []) + extra.truth, stop, clock=clock)
+        run = run_sim(pipeline, flight, args.transport, args.speed, ([rec.write_truth] if rec else []) + extra.truth, stop, clock=clock,
+                      status_sinks=_status_sinks(pub, rec, extra), health=_health(pub, rec, extra))
     print(f"sim: {run.samples} samples -> {run.estimates} estimates in {run.wall_s:.1f} s")
     if args.record:
         _print_scores(args.record)
@@ -530,6 +530,24 @@ def _estimate_sinks(pub: Any, rec: Any) -> list:
     """Where each estimate goes: zenoh first, so a subscriber never waits for the recorder's
     serialisation (measured: +0.1 ms on the publish latency the other way round), then MCAP."""
     return [s for s in (pub.publish_estimate if pub else None, rec.write_estimate if rec else None) if s]
+
+
+def _status_sinks(pub: Any, rec: Any, extra: Any) -> list:
+    """Where the status goes once a second: the recording's ``/status``, zenoh's ``.../status``, the other outputs."""
+    return [s for s in (rec.write_status if rec else None, (lambda t, d: pub.publish_status(d)) if pub else None) if s] + extra.status
+
+
+def _health(pub: Any, rec: Any, extra: Any) -> Callable[[], dict]:
+    """The outputs' entries in the status: the recorder's, the publisher's, the other outputs'."""
+    def health() -> dict:
+        out: dict[str, Any] = {}
+        if rec is not None:
+            out["recorder"] = rec.health()
+        if pub is not None:
+            out["publisher"] = {"errors": pub.errors, "subscribed": pub.has_subscribers}
+        return out | extra.health_status()
+
+    return health
 
 
 def _extra_outputs(stack: ExitStack, config: FuserConfig, args: argparse.Namespace):
@@ -572,19 +590,8 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
             stack.callback(rec.close)
         extra = _extra_outputs(stack, config, args)
         pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
-        status_sinks = [s for s in (rec.write_status if rec else None, (lambda t, d: pub.publish_status(d)) if pub else None) if s]
-        status_sinks += extra.status
-
-        def health() -> dict:
-            out: dict[str, Any] = {}
-            if rec is not None:
-                out["recorder"] = {"alive": rec.alive, "dropped": rec.dropped, "rejected": rec.rejected}
-            if pub is not None:
-                out["publisher"] = {"errors": pub.errors, "subscribed": pub.has_subscribers}
-            return out | extra.health_status()
-
         _warm_up(config)  # after everything has opened: an input or output that cannot is reported at once
-        runner = LiveRunner(pipeline, sources, status_sinks, health, clock)
+        runner = LiveRunner(pipeline, sources, _status_sinks(pub, rec, extra), _health(pub, rec, extra), clock)
         _stop_on_signal(runner.stop)
         status = runner.run(args.duration, lambda: print(f"run: fusing {', '.join(sources)} at {config.rate_hz:g} Hz; Ctrl-C to stop",
                                                          file=sys.stderr, flush=True))

@@ -26,7 +26,7 @@ from drivers.base import SampleSource
 from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
 from fuser.model import FusionModel, TickInput
-from fuser.pipeline import Pipeline
+from fuser.pipeline import STATUS_PERIOD_NS, Pipeline
 from fuser.wallclock import WallClock
 
 __all__ = ["LiveRunner"]
@@ -160,10 +160,7 @@ class LiveRunner:
         lat = np.array(self.latencies_ns, dtype=float) / 1e6
         latency = {} if lat.size == 0 else {"p50_ms": float(np.percentile(lat, 50)), "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max())}
         return {
-            "estimates": self.pipeline.estimates,
-            "loop": dict(self.pipeline.loop.counters),
-            "model": dict(self.pipeline.loop.model.counters),
-            "diagnostics": self.pipeline.loop.diagnostics(),
+            **self.pipeline.status(),
             "sources": {name: {**dict(src.stats), **t.health(now)} for (name, src), t in zip(self.sources.items(), self._threads)},
             "runner": dict(self.counters),
             "latency": latency,
@@ -193,7 +190,7 @@ class LiveRunner:
         if on_start is not None:
             on_start()
         start = self.clock.now_ns()
-        next_status = start + 1_000_000_000
+        next_status = start + STATUS_PERIOD_NS
         try:
             while not self.stop_event.is_set():
                 now = self.clock.now_ns()
@@ -204,7 +201,7 @@ class LiveRunner:
                 now = self.clock.now_ns()
                 self.pipeline.advance(now)
                 if now >= next_status:
-                    next_status += 1_000_000_000
+                    next_status += STATUS_PERIOD_NS
                     status = self.status()
                     for sink in self.status_sinks:
                         sink(now, status)

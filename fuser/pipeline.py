@@ -14,7 +14,11 @@ from fuser.codec import Estimate
 from fuser.config import FuserConfig
 from fuser.loop import FusionLoop
 
-__all__ = ["EstimateSink", "InputSink", "Pipeline"]
+__all__ = ["STATUS_PERIOD_NS", "EstimateSink", "InputSink", "Pipeline"]
+
+STATUS_PERIOD_NS = 1_000_000_000
+"""The status (:meth:`Pipeline.status` and the outputs' health) goes out once a second: of wall time live, of
+flight time in a simulated run."""
 
 InputSink = Callable[[Sample, int], None]
 """Receives every input sample with its receive time (e.g. ``McapRecorder.write_sample``)."""
@@ -52,6 +56,16 @@ class Pipeline:
     def finish(self) -> None:
         """Run the ticks that cover the samples still buffered (end of input)."""
         self._emit(self.loop.flush())
+
+    def status(self) -> dict:
+        """The loop's part of the status (``.../status``, ``/status``): estimates so far, the loop's and the
+        model's counters, the last tick's update diagnostics (fuser/IO.md, "Status")."""
+        return {
+            "estimates": self.estimates,
+            "loop": dict(self.loop.counters),
+            "model": dict(self.loop.model.counters),
+            "diagnostics": self.loop.diagnostics(),
+        }
 
     def _emit(self, estimates: list[Estimate]) -> None:
         for est in estimates:

@@ -282,6 +282,10 @@ class McapRecorder:
     def rejected_total(self) -> int:
         return sum(self.rejected.values())
 
+    def health(self) -> dict[str, Any]:
+        """The recorder's entry in the status, as :meth:`RecorderProcess.health`'s (in process, nothing is dropped)."""
+        return {"alive": not self.closed, "dropped": 0, "rejected": self.rejected_total}
+
     def _reject(self, topic: str, reason: str, detail: str) -> None:
         self.rejected[reason] += 1
         if self.rejected_total == 1:
@@ -462,6 +466,10 @@ class RecorderProcess:
     def rejected(self) -> int:
         """Records the child refused or failed to write (it goes on recording)."""
         return int(self._rejected.value)
+
+    def health(self) -> dict[str, Any]:
+        """The recorder's entry in the status: the child alive, writes dropped, records refused."""
+        return {"alive": self.alive, "dropped": self.dropped, "rejected": self.rejected}
 
     def _put(self, method: str, *args: Any) -> None:
         if self._closed or not self._proc.is_alive():

@@ -6,7 +6,8 @@ decoders, then the same pipeline as live data. Paced to the wall clock
 :class:`~fuser.wallclock.WallClock`'s time, Unix nanoseconds, like live data.
 Or as fast as possible (``speed=0``): then the receive time is the send time
 plus a fixed link latency, on the simulated flight's own clock, and the run
-is deterministic. Truth goes to its sinks as ``(t_ns, q, log_ns)``: ``t_ns``
+is deterministic (all but the status's zenoh entry, whose ``subscribed`` says
+whether anyone listened). Truth goes to its sinks as ``(t_ns, q, log_ns)``: ``t_ns``
 on the vehicle's own clock, the clock of each estimate's ``sensor_t_ns`` (so
 scoring needs no alignment), and ``log_ns`` the receive time of that IMU tick,
 so that truth and estimates are recorded on one timeline.
@@ -20,7 +21,7 @@ from typing import Callable, Sequence
 
 from drivers.sim import Flight
 from fuser.inputs import SIM_LINK_LATENCY_NS, sim_ticks
-from fuser.pipeline import Pipeline
+from fuser.pipeline import STATUS_PERIOD_NS, Pipeline
 from fuser.wallclock import WallClock
 
 __all__ = ["SimRun", "run_sim"]
@@ -42,6 +43,8 @@ def run_sim(
     should_stop: Callable[[], bool] = lambda: False,
     truth_rate_hz: float = 100.0,
     clock: WallClock | None = None,
+    status_sinks: Sequence[Callable[[int, dict], None]] = (),
+    health: Callable[[], dict] = dict,
 ) -> SimRun:
     """Fly a simulated flight through ``pipeline``; returns counts and wall time.
 
@@ -49,6 +52,9 @@ def run_sim(
     (slerp between 100 Hz samples is far more accurate than any estimate).
     A paced run receives on ``clock`` (default: measured now, running ``speed``
     times as fast as real time, so the loop ticks at its rate in flight time).
+    Once a second of flight the status (:meth:`Pipeline.status` and the
+    outputs' ``health``, as a live run's) goes to ``status_sinks`` as
+    ``(receive_ns, status)``.
     """
     clock = (clock or WallClock.start(speed)) if speed > 0 else None
     start_mono = time.monotonic_ns()
@@ -56,6 +62,7 @@ def run_sim(
     t0 = int(flight.t_ns[0])
     truth_period = round(1e9 / truth_rate_hz)
     next_truth = t0
+    next_status = t0 + STATUS_PERIOD_NS
     samples = 0
     for t_ns, q_true, tick in sim_ticks(flight, transport):
         if should_stop():
@@ -75,5 +82,10 @@ def run_sim(
         for sample in tick:
             pipeline.feed(sample, received)
             samples += 1
+        if status_sinks and t_ns >= next_status:
+            next_status += STATUS_PERIOD_NS
+            status = {**pipeline.status(), **health()}
+            for status_sink in status_sinks:
+                status_sink(received, status)
     pipeline.finish()
     return SimRun(samples, pipeline.estimates, (time.monotonic_ns() - start_mono) / 1e9)

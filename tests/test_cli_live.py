@@ -128,12 +128,14 @@ def paced_sim(tmp_path_factory: pytest.TempPathFactory) -> dict:
     port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     received: list = []
+    statuses: list = []
     t0, m0 = time.time_ns(), time.monotonic_ns()
     proc = subprocess.Popen(FUSER + ["sim", "--duration", str(PACED_S), "-o", "sim.mcap", "--vehicle", "wallclock",
                                      "--zenoh-listen", endpoint],
                             cwd=folder, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
-        with subscribe(zenoh_config(listen=[], connect=[endpoint]), "wallclock", received.append):  # dials until the fuser listens
+        with subscribe(zenoh_config(listen=[], connect=[endpoint]), "wallclock", received.append,  # dials until the fuser listens
+                       on_status=statuses.append):
             out, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
@@ -141,7 +143,7 @@ def paced_sim(tmp_path_factory: pytest.TempPathFactory) -> dict:
     t1, m1 = time.time_ns(), time.monotonic_ns()
     assert proc.returncode == 0, err
     records, metadata = read_mcap(folder / "sim.mcap")
-    return {"path": folder / "sim.mcap", "records": records, "metadata": metadata, "received": received,
+    return {"path": folder / "sim.mcap", "records": records, "metadata": metadata, "received": received, "statuses": statuses,
             "unix": (t0, t1), "monotonic": (m0, m1), "stdout": out}
 
 
@@ -161,6 +163,20 @@ def test_paced_sim_records_every_channel_on_the_runs_unix_timeline(paced_sim: di
     publish_s = [p / 1e9 for _, p, _ in records["/truth/pose"]]
     assert PACED_S - 1.0 < max(publish_s) - min(publish_s) < PACED_S + 1.0 and max(publish_s) < 60  # the flight on its own clock
     assert "error against simulator truth" in paced_sim["stdout"]
+
+
+def test_paced_sim_gives_the_status_once_a_second_as_a_live_run_does(paced_sim: dict) -> None:
+    """On zenoh (``.../status``) and in the recording (``/status``), with the loop's counters, the updates'
+    diagnostics and the outputs' health; the counts grow from one status to the next."""
+    recorded = [d for _, _, d in paced_sim["records"]["/status"]]
+    assert PACED_S - 2 <= len(recorded) <= PACED_S
+    for status in recorded:
+        assert {"estimates", "loop", "model", "diagnostics", "recorder", "publisher"} <= set(status)
+        assert status["recorder"]["alive"] is True and status["recorder"]["dropped"] == 0
+    estimates = [s["estimates"] for s in recorded]
+    assert estimates == sorted(estimates) and 0 < estimates[0] < estimates[-1] <= len(paced_sim["records"]["/estimate"])
+    assert set(recorded[-1]["diagnostics"]) >= {"gravity", "heading"}  # the latest of each update
+    assert paced_sim["statuses"] and all(set(s) == set(recorded[0]) for s in paced_sim["statuses"])
 
 
 def test_paced_sim_publishes_unix_times_on_zenoh(paced_sim: dict) -> None:
