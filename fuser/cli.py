@@ -408,7 +408,7 @@ def _load_config(args: argparse.Namespace) -> FuserConfig | None:
     except OSError as e:
         raise UsageError(f"cannot read --config {args.config}: {e.strerror or e}") from e
     except (TypeError, ValueError) as e:
-        raise UsageError(f"bad configuration{f' in {args.config}' if args.config else ''}: {e}") from e
+        raise UsageError(f"bad configuration: {e}") from e  # load_config's message names the file
 
 
 def _beside_ros2_router(config: FuserConfig, args: argparse.Namespace) -> FuserConfig:

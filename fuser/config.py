@@ -690,11 +690,11 @@ def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | N
     wrong types are errors naming the key.
     """
     table: dict[str, Any] = {}
-    if path is not None:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
-        table = data.get("fuser", data)
     try:
+        if path is not None:
+            with open(path, "rb") as f:
+                data = tomllib.load(f)  # a TOML syntax error is a ValueError too, named with the file below
+            table = data.get("fuser", data)
         return _build(FuserConfig, _merge(table, _nested(overrides or {})), "fuser")
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}" if path is not None else str(exc)) from None
