@@ -103,6 +103,14 @@ def test_jobs_2_writes_the_bytes_of_jobs_1_and_of_single_replays(logs, reference
         assert Path(r2.output).read_bytes() == expected
 
 
+def test_an_autopilots_estimate_is_named_as_the_reference_not_called_truth(tmp_path):
+    """The PX4 cut's reference is EKF2's attitude (its metadata says so): the summary says "vs EKF2", as ``report``
+    does, so agreement with another estimator is not read as accuracy."""
+    (result,) = run_batch([LOGS / "px4_sample_cut.mcap"], tmp_path, FuserConfig(), jobs=1)
+    assert result.ok and result.reference == "EKF2" and result.error_deg is not None
+    assert any(line.endswith(f"{result.error_deg:.2f} vs EKF2") for line in batch.format_summary([result]))
+
+
 def test_summary_counts_and_errors(logs, tmp_path):
     inputs = [HOVER, logs["tlog"], logs["broken"], tmp_path / "missing.tlog"]
     results = run_batch(inputs, tmp_path / "out", FuserConfig(), jobs=1)
@@ -112,7 +120,7 @@ def test_summary_counts_and_errors(logs, tmp_path):
     assert hover.estimates == len(read_log(hover.output).estimates())
     # the simulator's own run recorded estimates into the log; its error against the truth is the replay's
     recorded = errors_of_log(HOVER)[1].rms(5.0)["total"]
-    assert hover.reference == "truth" and hover.error_deg == pytest.approx(recorded, abs=1e-6)
+    assert hover.reference == "simulator truth" and hover.error_deg == pytest.approx(recorded, abs=1e-6)
     assert tlog.ok and tlog.samples == logs["tlog_packets"] and tlog.error_deg is None  # a .tlog of IMU only: no reference
     assert not broken.ok and "nothing to replay" in broken.reason and "no record could be read" in broken.reason
     assert not Path(broken.output).exists()
