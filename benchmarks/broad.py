@@ -346,7 +346,8 @@ def model_revision() -> str:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--trials", default=str(ROOT.parent / "shared" / "data" / "broad"), help="folder of BROAD .hdf5 trials")
+    ap.add_argument("--trials", default=str(ROOT.parent / "shared" / "data" / "broad"),
+                    help="folder of BROAD .hdf5 trials (default: ../shared/data/broad beside the repository)")
     ap.add_argument("--quick", action="store_true", help="only the first 75 s of each trial, no plots, no RESULTS.md")
     ap.add_argument("--config", help="FuserConfig TOML (one parameter set for all trials)")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a setting (JSON value; group.key, e.g. accel.lowpass_s=2)")
@@ -372,7 +373,8 @@ def main(argv=None) -> int:
     if args.only:
         trials = [t for t in trials if args.only in t.name]
     if not trials:
-        print(f"no .hdf5 trials in {args.trials}", file=sys.stderr)
+        print(f"no .hdf5 trials in {args.trials} (give --trials FOLDER: BROAD's data_hdf5, https://github.com/dlaidig/broad)",
+              file=sys.stderr)
         return 2
     print(f"BROAD: {len(trials)} trials from {args.trials}\n{BROAD_ATTRIBUTION}\n", flush=True)
     if args.loto:

@@ -42,7 +42,8 @@ PHASES = (("after 1 s", 1.0, 1e9), ("motion 1-7 s", 1.0, 7.0), ("still > 7 s", 7
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--log", default=str(ROOT.parent / "shared" / "data" / "px4" / "sample.ulg"))
+    ap.add_argument("--log", default=str(ROOT.parent / "shared" / "data" / "px4" / "sample.ulg"),
+                    help="a PX4 ULog (default: pyulog's sample flight in ../shared/data/px4 beside the repository)")
     ap.add_argument("--config")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--no-write", action="store_true")
@@ -51,6 +52,9 @@ def main(argv=None) -> int:
         import pyulog  # noqa: F401
     except ImportError:
         print("px4.py needs pyulog: pip install 'bingham-fuser[import]'", file=sys.stderr)
+        return 2
+    if not Path(args.log).is_file():
+        print(f"no such file: {args.log} (give --log FILE: a PX4 ULog, e.g. pyulog's sample.ulg)", file=sys.stderr)
         return 2
     config = load_config(args.config, parse_sets(args.set))
     data = read_px4(args.log)
