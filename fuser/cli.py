@@ -733,13 +733,31 @@ def _explain(exc: BaseException) -> tuple[int, str]:
                           "(run again with --verbose for the traceback, and please report it)")
 
 
+def _not_taken(argv: list[str], extra: list[str]) -> str:
+    """What to name of the arguments argparse left over: each unknown option with its value where the value came
+    right after it (``--rate 5``). Not a token argparse took elsewhere: in ``report --rate 5 LOG`` the 5 became
+    the log and ``LOG`` is left over, and only ``--rate`` is the mistake."""
+    options = [k for k, token in enumerate(extra) if token.startswith("-")]
+    if not options:
+        return " ".join(extra)
+    named = []
+    for k in options:
+        named.append(extra[k])
+        at = argv.index(extra[k])
+        value = extra[k + 1] if k + 1 < len(extra) else None
+        if value is not None and not value.startswith("-") and at + 1 < len(argv) and argv[at + 1] == value:
+            named.append(value)
+    return " ".join(named)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; returns the exit code (0 done, 1 failed while running, 2 bad usage)."""
     verbose = 0
     try:
         args, extra = _parser().parse_known_args(argv)
         if extra:
-            raise UsageError(f"{args.command} does not take {' '.join(extra)} (see {PROG} {args.command} --help)")
+            raise UsageError(f"{args.command} does not take {_not_taken(list(sys.argv[1:] if argv is None else argv), extra)} "
+                             f"(see {PROG} {args.command} --help)")
         verbose = args.verbose
         logging.basicConfig(level=[logging.WARNING, logging.INFO, logging.DEBUG][min(verbose, 2)],
                             format="%(levelname)s %(name)s: %(message)s")

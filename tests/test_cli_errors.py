@@ -179,6 +179,7 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "import-missing-file": (["import", "x.ulg", "-o", "x.mcap"], 2, ("x.ulg",)),
     "listen-no-zenoh": (["listen", "--no-zenoh"], 2, ("listen does not take --no-zenoh",)),
     "listen-rate": (["listen", "--rate", "5"], 2, ("listen does not take --rate 5",)),
+    "report-rate-before-log": (["report", "--rate", "5", str(LOG)], 2, ("report does not take --rate (see",)),  # 5 was taken as the log
     "replay-vehicle": (["replay", str(LOG), "-o", "out.mcap", "--vehicle", "x"], 2, ("replay does not take --vehicle x",)),
     "sim-send-with-record": (["sim", "--send", "udpout:127.0.0.1:9", "-o", "sim.mcap"], 2, ("--record acts on a fuser running here",)),
     "sim-send-with-fusion": (["sim", "--send", "udpout:127.0.0.1:9", "--rate", "50", "--no-mag"], 2, ("--rate, --no-mag act",)),
