@@ -242,8 +242,10 @@ def _add_run(sub: Any) -> None:
 
 
 def _add_replay(sub: Any) -> None:
-    p = sub.add_parser("replay", help="replay a recorded MCAP or .tlog through the loop, as fast as possible",
-                       description="Replay a log (MCAP recorded by bingham-fuser, or a MAVLink .tlog) through the same loop on "
+    p = sub.add_parser("replay", help="replay a recorded MCAP, a .tlog, or a log import reads, through the loop, as fast as possible",
+                       description="Replay a log (MCAP recorded by bingham-fuser, a MAVLink .tlog, or an ArduPilot DataFlash log, "
+                                   "PX4 ULog or BROAD trial, imported on the way with the reference field the import finds unless "
+                                   "the configuration sets one) through the same loop on "
                                    "a virtual clock and write inputs and estimates to a new MCAP. Same log, same bytes. A damaged "
                                    "MCAP replays every chunk that can be read, and says what it skipped. Many logs: --out-dir DIR, "
                                    "in parallel processes (--jobs) or on a Dask cluster (--dask).")
@@ -608,6 +610,8 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     log = args.log[0]
     _check_output(args.output, "--output")
     summary = replay(log, args.output, config)
+    if summary.imported is not None:
+        _print_not_imported(log, summary.imported)
     if summary.skipped:
         _warn(f"{log} is damaged: skipped {summary.skipped.describe()}; replayed the rest")
     elif summary.incomplete:
@@ -631,35 +635,30 @@ def _needs(module: str, extra: str, what: str) -> None:
         raise UsageError(f"{what} needs the '{module}' package: pip install 'bingham-fuser[{extra}]' (or pip install {module})")
 
 
+def _print_not_imported(source: str, skipped: dict[str, int]) -> None:
+    """What an import left out of ``source``, and a warning if the log was cut short."""
+    if skipped:
+        print(f"not imported: {skipped}")
+    if skipped.get("incomplete_tail_bytes"):
+        _warn(f"{source} ends with {skipped['incomplete_tail_bytes']:,} bytes that are not a whole record: cut short "
+              "(power lost while logging, a download that stopped?) or garbage after the last record; imported what is there")
+
+
 def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
-    from fuser.errors import NotALogError
-    from fuser.dataflash import read_dataflash
-    from fuser.importers import detect_format, read_broad, read_px4, write_mcap
+    from fuser.importers import read_sensor_log, write_mcap
     from fuser.inputs import NOT_REFUSALS
 
     if not Path(args.source).is_file():
         raise UsageError(f"import: no such file: {args.source}")
-    try:
-        fmt = args.format or detect_format(args.source)
-    except ValueError as exc:
-        raise UsageError(f"import: {exc}") from exc
-    module = {"broad": "h5py", "px4": "pyulog"}.get(fmt)  # DataFlash: pymavlink, a core dependency
-    if module:
-        _needs(module, "import", f"reading {fmt} logs")
     _check_output(args.output, "--output")
     cfg_out = str(Path(args.output).with_suffix(".toml")) if args.config_out is None else (args.config_out or None)
-    reader = {"broad": read_broad, "px4": read_px4, "dataflash": read_dataflash}[fmt]
     try:
-        data = reader(args.source, args.start, args.duration)
-    except Exception as e:  # noqa: BLE001 - h5py, pyulog and DFReader raise anything on a file that is not theirs
-        raise NotALogError(f"cannot read {args.source} as a {fmt} log: {type(e).__name__}: {e}") from e
+        data = read_sensor_log(args.source, args.format, args.start, args.duration)
+    except UsageError as exc:
+        raise type(exc)(f"import: {exc}") from exc
     s = write_mcap(data, args.output, cfg_out, progress=sys.stderr)
     print(f"import: {s.imu} IMU + {s.attitude} attitude + {s.gnss} GNSS messages through MAVLink, {s.truth} reference attitudes -> {s.path}")
-    if s.skipped:
-        print(f"not imported: {s.skipped}")
-    if s.skipped.get("incomplete_tail_bytes"):
-        _warn(f"{args.source} ends with {s.skipped['incomplete_tail_bytes']:,} bytes that are not a whole record: cut short "
-              "(power lost while logging, a download that stopped?) or garbage after the last record; imported what is there")
+    _print_not_imported(args.source, s.skipped)
     print(f"reference field (N, E, D gauss): {s.mag_field_ned_gauss}" + (f"; replay with --config {s.config_path}" if s.config_path else ""))
     refused = {k: v for k, v in s.decoder_stats.items() if k not in NOT_REFUSALS and v}
     if refused:

@@ -89,6 +89,7 @@ Reference field
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import io
 import math
 import os
@@ -570,17 +571,43 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
 
 
 FORMATS = {"broad": "a BROAD trial (.hdf5)", "px4": "a PX4 ULog (.ulg)", "dataflash": "an ArduPilot DataFlash log (.bin)"}
+SUFFIXES = {".hdf5": "broad", ".h5": "broad", ".ulg": "px4", ".bin": "dataflash"}
+"""The file name endings each format is told by (any case)."""
+READER_PACKAGES = {"broad": "h5py", "px4": "pyulog"}
+"""The optional package (extra ``import``) each format's reader needs; DataFlash's, pymavlink, is a core dependency."""
 
 
 def detect_format(path: str | Path) -> str:
-    suffix = Path(path).suffix.lower()
-    if suffix in (".hdf5", ".h5"):
-        return "broad"
-    if suffix == ".ulg":
-        return "px4"
-    if suffix == ".bin":
-        return "dataflash"
-    raise ValueError(f"cannot tell the format of {path}: expected {', '.join(FORMATS.values())}")
+    fmt = SUFFIXES.get(Path(path).suffix.lower())
+    if fmt is None:
+        raise ValueError(f"cannot tell the format of {path}: expected {', '.join(FORMATS.values())}")
+    return fmt
+
+
+def is_importable(path: str | Path) -> bool:
+    """Whether ``path`` is named as a log :func:`read_sensor_log` reads (not an MCAP or a .tlog)."""
+    return Path(path).suffix.lower() in SUFFIXES
+
+
+def read_sensor_log(path: str | Path, fmt: str | None = None, start_s: float = 0.0, duration_s: float | None = None) -> SensorData:
+    """A BROAD trial, PX4 ULog or DataFlash log read by its format's reader (``fmt``: from the name if None), every
+    way it can fail one line for the user: :class:`~fuser.errors.UsageError` for a name no format has or a reader
+    package that is not installed, :class:`~fuser.errors.NotALogError` for a file the reader refuses."""
+    from fuser.dataflash import read_dataflash
+    from fuser.errors import NotALogError, UsageError
+
+    try:
+        fmt = fmt or detect_format(path)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from exc
+    package = READER_PACKAGES.get(fmt)
+    if package is not None and importlib.util.find_spec(package) is None:
+        raise UsageError(f"reading {fmt} logs needs the '{package}' package: pip install 'bingham-fuser[import]' (or pip install {package})")
+    reader = {"broad": read_broad, "px4": read_px4, "dataflash": read_dataflash}[fmt]
+    try:
+        return reader(path, start_s, duration_s)
+    except Exception as exc:  # noqa: BLE001 - h5py, pyulog and DFReader raise anything on a file that is not theirs
+        raise NotALogError(f"cannot read {path} as a {fmt} log: {type(exc).__name__}: {exc}") from exc
 
 
 def import_log(
@@ -592,9 +619,6 @@ def import_log(
     config_path: str | Path | None = None,
     progress: TextIO | None = None,
 ) -> ImportSummary:
-    """Read a BROAD trial, PX4 ULog or ArduPilot DataFlash log and write the MCAP ``out`` (and the TOML ``config_path``)."""
-    from fuser.dataflash import read_dataflash
-
-    fmt = fmt or detect_format(path)
-    reader = {"broad": read_broad, "px4": read_px4, "dataflash": read_dataflash}[fmt]
-    return write_mcap(reader(path, start_s, duration_s), out, config_path, progress)
+    """Read a BROAD trial, PX4 ULog or ArduPilot DataFlash log and write the MCAP ``out`` (and the TOML ``config_path``);
+    failures as :func:`read_sensor_log`'s."""
+    return write_mcap(read_sensor_log(path, fmt, start_s, duration_s), out, config_path, progress)

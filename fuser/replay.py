@@ -19,9 +19,10 @@ from __future__ import annotations
 import errno
 import os
 import sys
+import tempfile
 import time
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace as with_fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Iterator, TextIO
 
@@ -29,6 +30,7 @@ from drivers.samples import Sample
 from fuser.codec import decode_sample, loads
 from fuser.config import FuserConfig
 from fuser.errors import FuserError, NotALogError
+from fuser.importers import import_log, is_importable
 from fuser.inputs import InputReport, TlogInputs
 from fuser.mcap_scan import RawMessage, Skipped
 from fuser.progress import progress_bar
@@ -61,6 +63,9 @@ class ReplaySummary:
     """Records the output could not hold, by reason (``McapRecorder.rejected``: a time outside uint64, NaN)."""
     inputs: InputReport | None = None
     """A .tlog's account: decodable IMU messages, those the loop took, everything refused by reason."""
+    imported: dict[str, int] | None = None
+    """For a log replayed through ``import`` (DataFlash, ULog, BROAD): what the import left out, by reason
+    (:attr:`fuser.importers.ImportSummary.skipped`); None for an MCAP or a .tlog."""
 
     @property
     def samples_per_s(self) -> float:
@@ -103,13 +108,34 @@ def _check_tlog(log: Path) -> None:
 
 
 def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: TextIO | None = sys.stderr) -> ReplaySummary:
-    """Fuse every input of ``log`` (MCAP or .tlog) and record the result to ``out``.
+    """Fuse every input of ``log`` (MCAP, .tlog, or a log ``import`` reads) and record the result to ``out``.
 
     ``progress``: where to draw a progress bar (only if it is a terminal).
     """
     log, out = Path(log), Path(out)
     if not log.is_file():  # before pymavlink takes a missing .tlog for a serial port
         raise FileNotFoundError(errno.ENOENT, "no such log file", str(log))
+    if is_importable(log):
+        return _replay_imported(log, out, config, progress)
+    return _replay(log, out, config, progress, log.name)
+
+
+def _replay_imported(log: Path, out: Path, config: FuserConfig, progress: TextIO | None) -> ReplaySummary:
+    """A DataFlash log, PX4 ULog or BROAD trial: imported (:func:`fuser.importers.import_log`, into a temporary MCAP
+    beside ``out``) and that replayed, with the reference field the import found unless ``config`` sets one: the
+    same estimates as ``import LOG -o X.mcap`` then ``replay X.mcap --config X.toml``, in one step, so that a batch
+    of such logs each gets its own field. What the import left out is in the summary's ``imported``."""
+    start = time.monotonic()
+    with tempfile.TemporaryDirectory(prefix=f".{log.stem}.import.", dir=out.parent) as folder:
+        imported = import_log(log, Path(folder) / f"{log.stem}.mcap", progress=progress)
+        if config.mag.field_ned_gauss is None:
+            config = config.replace(mag={"field_ned_gauss": imported.mag_field_ned_gauss})
+        summary = _replay(imported.path, out, config, progress, log.name)
+    return with_fields(summary, seconds=time.monotonic() - start, imported=imported.skipped)
+
+
+def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, source_name: str) -> ReplaySummary:
+    """:func:`replay` of an MCAP or a .tlog; ``source_name`` goes into the output's metadata (``source_log``)."""
     if log.suffix == ".tlog":
         _check_tlog(log)
     contents, messages = (None, None) if log.suffix == ".tlog" else _read_mcap(log)
@@ -120,7 +146,7 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     samples = 0
     provenance = {} if contents is None else contents.metadata.get("bingham_fuser", {})  # reference, source, attribution
     try:
-        with McapRecorder(partial, metadata={**provenance, "source_log": log.name}) as recorder:
+        with McapRecorder(partial, metadata={**provenance, "source_log": source_name}) as recorder:
             pipeline = Pipeline(config, [], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
             tlog = TlogInputs(log, config.link) if messages is None else None
             if tlog is not None:

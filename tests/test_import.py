@@ -207,3 +207,19 @@ def test_import_rejects_unknown_format(tmp_path):
     run = subprocess.run([sys.executable, "-m", "fuser.cli", "import", str(bogus), "-o", str(tmp_path / "o.mcap")],
                          capture_output=True, text=True, timeout=60, cwd=ROOT)
     assert run.returncode == 2 and "BROAD" in run.stderr
+
+
+def test_replaying_a_log_whose_reader_is_not_installed_names_the_extra(tmp_path, monkeypatch, capsys):
+    """``replay x.ulg`` imports on the way; without pyulog that is one line saying what to install, exit 2, and
+    no output (and no temporary import) left behind."""
+    import importlib.util
+
+    from fuser.cli import main
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *args: None if name == "pyulog" else find_spec(name, *args))
+    (tmp_path / "flight.ulg").write_bytes(b"ULog\x01\x12\x35\x01" + bytes(8))
+    assert main(["replay", str(tmp_path / "flight.ulg"), "-o", str(tmp_path / "out.mcap")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["bingham-fuser: reading px4 logs needs the 'pyulog' package: pip install 'bingham-fuser[import]' (or pip install pyulog)"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.ulg"]

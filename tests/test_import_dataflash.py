@@ -26,7 +26,9 @@ from core.earth_field import decimal_year, field_ned_gauss
 from drivers.samples import AttitudeSample, GnssSample, ImuSample
 from drivers.sim import SimConfig, measure, multirotor_trajectory
 from fuser.cli import main
+from fuser.config import FuserConfig
 from fuser.record import read_log
+from fuser.replay import replay
 
 from dataflash_writer import DataFlashWriter
 
@@ -332,6 +334,28 @@ def test_replay_follows_the_autopilots_attitude(written, imported, tmp_path):
     err = np.degrees(quat.angular_distance(np.array([e.q_wxyz for e in est])[keep], q_ref[nearest]))
     rms = float(np.sqrt(np.mean(err**2)))
     assert rms < 5.0, f"RMS {rms:.2f} deg against the autopilot's attitude"  # measured 3.3 (old, 50 Hz IMU) and 2.1 (new)
+
+
+def test_replaying_the_log_itself_is_importing_it_then_replaying_with_its_field(written, imported, tmp_path):
+    """``replay LOG.BIN`` (as a fleet's batch does, each log with its own field) gives the estimates of ``import``
+    then ``replay --config LOG.toml``, message for message; a field the configuration sets wins over the import's."""
+    out, _ = imported
+    rate = ["--rate", "50"] if written.path.stem == "old" else []
+    assert main(["replay", str(written.path), "-o", str(tmp_path / "direct.mcap"), *rate]) == 0
+    assert main(["replay", str(out), "-o", str(tmp_path / "two_steps.mcap"), "--config", str(out.with_suffix(".toml")), *rate]) == 0
+    direct, two_steps = read_log(tmp_path / "direct.mcap"), read_log(tmp_path / "two_steps.mcap")
+    for topics in (["/estimate"], ["/input/imu", "/input/attitude", "/input/gnss"], ["/truth/pose"]):
+        assert [m.data for m in direct.of(topics)] == [m.data for m in two_steps.of(topics)], topics
+    assert len(direct.of(["/estimate"])) > 1000
+    assert direct.metadata["bingham_fuser"]["source_log"] == written.path.name
+    assert not list(tmp_path.glob(".*import*"))  # the imported MCAP was temporary
+
+    elsewhere = FuserConfig().replace(mag={"field_ned_gauss": (0.3, 0.05, 0.3)}, rate_hz=50.0 if rate else 100.0)
+    replay(written.path, tmp_path / "configured.mcap", elsewhere, progress=None)
+    replay(out, tmp_path / "configured_two_steps.mcap", elsewhere, progress=None)
+    configured = [m.data for m in read_log(tmp_path / "configured.mcap").of(["/estimate"])]
+    assert configured == [m.data for m in read_log(tmp_path / "configured_two_steps.mcap").of(["/estimate"])]
+    assert configured != [m.data for m in direct.of(["/estimate"])]
 
 
 def test_a_file_that_is_not_a_dataflash_log_is_one_clear_error(tmp_path):
