@@ -23,7 +23,7 @@ import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Sequence, TextIO
 
@@ -74,6 +74,8 @@ class LogResult:
     error_deg: float | None = None
     """RMS total error against ``reference`` after the first ``SCORE_SINCE_S`` seconds (all of a shorter log)."""
     reference: str | None = None
+    not_imported: dict[str, int] = field(default_factory=dict)
+    """For a log replayed through ``import`` (DataFlash, ULog, BROAD): what the import left out, by reason."""
 
     @property
     def samples_per_s(self) -> float:
@@ -119,7 +121,7 @@ def run_task(task: LogTask) -> LogResult:
     counters = summary.counters
     rejected = sum(v for k, v in counters.items() if any(mark in k for mark in REJECTION_COUNTERS))
     return LogResult(task.log, task.output, True, "", summary.samples, summary.estimates, summary.seconds,
-                     counters.get("samples", 0), rejected, error_deg, reference)
+                     counters.get("samples", 0), rejected, error_deg, reference, dict(summary.imported or {}))
 
 
 def output_paths(logs: Sequence[str | Path], out_dir: str | Path) -> list[Path]:
@@ -272,12 +274,15 @@ def format_summary(results: Iterable[LogResult], wall_s: float | None = None) ->
         cells = [c.rjust(w) if i in numeric else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))]
         return "  ".join(cells + [row[-1]]).rstrip()
 
+    notes = [f"{r.log}: not imported: {', '.join(f'{k}={v:,}' for k, v in r.not_imported.items())}"
+             + (" (the log was cut short, or ends in garbage)" if "incomplete_tail_bytes" in r.not_imported else "")
+             for r in results if r.not_imported]
     failed = sum(not r.ok for r in results)
     samples = sum(r.samples for r in results)
     total = f"replay: {len(results)} logs, {len(results) - failed} ok, {failed} failed; {samples:,} samples"
     if wall_s is not None:
         total += f" in {wall_s:.1f} s ({samples / wall_s if wall_s > 0 else 0.0:,.0f} samples/s)"
-    return [line(head), *(line(row) for row in rows), total]
+    return [line(head), *(line(row) for row in rows), *notes, total]
 
 
 def _cores() -> int:

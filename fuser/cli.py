@@ -739,10 +739,12 @@ def _not_taken(argv: list[str], extra: list[str]) -> str:
     options = [k for k, token in enumerate(extra) if token.startswith("-")]
     if not options:
         return " ".join(extra)
-    named = []
+    named, at = [], -1
     for k in options:
         named.append(extra[k])
-        at = argv.index(extra[k])
+        if extra[k] not in argv[at + 1:]:  # not as given (argparse's own rewriting): the option alone
+            continue
+        at = argv.index(extra[k], at + 1)  # the same option given twice: each where it stands
         value = extra[k + 1] if k + 1 < len(extra) else None
         if value is not None and not value.startswith("-") and at + 1 < len(argv) and argv[at + 1] == value:
             named.append(value)

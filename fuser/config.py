@@ -695,6 +695,8 @@ def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | N
             with open(path, "rb") as f:
                 data = tomllib.load(f)  # a TOML syntax error is a ValueError too, named with the file below
             table = data.get("fuser", data)
+            if not isinstance(table, dict):
+                raise ValueError(f"fuser must be a table of settings ([fuser]), got {table!r}")
         return _build(FuserConfig, _merge(table, _nested(overrides or {})), "fuser")
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: {exc}" if path is not None else str(exc)) from None

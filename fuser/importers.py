@@ -98,7 +98,7 @@ import struct
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, Sequence, TextIO
 
 import numpy as np
 
@@ -369,16 +369,16 @@ ULOG_MESSAGE_TYPES = frozenset(b"BFIMPQARDLCSO")
 add and remove subscription, data, logging, tagged logging, sync, dropout)."""
 
 
-def ulog_incomplete_tail_bytes(path: str | Path, start: int = ULOG_FILE_HEADER_BYTES) -> int | None:
+def ulog_incomplete_tail_bytes(path: str | Path, appended_offsets: Sequence[int] = ()) -> int | None:
     """How many bytes at the end of a ULog do not make a whole message: 0 for a log that ends where its last
     message does; for a log cut short (power lost while it was written, a download that stopped), the last
     message's bytes that are there. pyulog stops at such a message in silence. Walks the messages' own sizes
-    from ``start`` (a message boundary: the first after the file header, or the last appended-data offset).
-    None when the walk meets a type that is no ULog message's: damage has broken the framing there, and where
-    the file ends inside a message cannot be told."""
+    from a message boundary: the last of the file's appended-data offsets (its flag bits) that lies within
+    the file, else the first message after the file header. None when the walk meets a type that is no ULog
+    message's: damage has broken the framing there, and where the file ends inside a message cannot be told."""
     with open(path, "rb") as f:
         data = f.read()
-    at = min(start, len(data))
+    at = max((offset for offset in appended_offsets if ULOG_FILE_HEADER_BYTES <= offset <= len(data)), default=ULOG_FILE_HEADER_BYTES)
     while at + ULOG_MESSAGE_HEADER.size <= len(data):
         size, kind = ULOG_MESSAGE_HEADER.unpack_from(data, at)
         if kind not in ULOG_MESSAGE_TYPES:
@@ -401,10 +401,10 @@ def _ulog(path: str | Path, topics: list[str]) -> tuple[Any, Counter]:
     with contextlib.redirect_stdout(chatter):
         ulog = ULog(str(path), topics)
     text = chatter.getvalue()
-    appended = [offset for offset in ulog._appended_offsets if offset > 0] if ulog.has_data_appended else []  # pyulog keeps the offsets private
+    appended = ulog._appended_offsets if ulog.has_data_appended else []  # pyulog keeps the offsets private
     skipped = Counter({"corrupt_data": int(bool(ulog.file_corruption or "corruption detected" in text)),
                        "unknown_message_id": len(set(re.findall(r"no subscription found for message id (\d+)", text))),
-                       "incomplete_tail_bytes": ulog_incomplete_tail_bytes(path, max(appended, default=ULOG_FILE_HEADER_BYTES)) or 0})
+                       "incomplete_tail_bytes": ulog_incomplete_tail_bytes(path, appended) or 0})
     return ulog, +skipped
 
 

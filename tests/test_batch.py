@@ -111,6 +111,22 @@ def test_an_autopilots_estimate_is_named_as_the_reference_not_called_truth(tmp_p
     assert any(line.endswith(f"{result.error_deg:.2f} vs EKF2") for line in batch.format_summary([result]))
 
 
+def test_a_dataflash_log_cut_short_is_replayed_and_the_summary_says_what_its_import_left(tmp_path):
+    """A fleet's .BIN goes through the batch as it is (imported on the way, fuser/replay.py); one cut 5 bytes into
+    its last record: the summary names the log and the bytes, as ``import`` would."""
+    from dataflash_writer import DataFlashWriter
+
+    w = DataFlashWriter()
+    w.declare(76, "IMU", "QBffffffIIfBBHH", "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ,EG,EA,T,GH,AH,GHz,AHz")
+    for k in range(400):
+        w.write("IMU", TimeUS=1_000_000 + 5_000 * k, I=0, GyrX=0.0, GyrY=0.0, GyrZ=0.0, AccX=0.0, AccY=0.0, AccZ=-9.80665,
+                EG=0, EA=0, T=40.0, GH=1, AH=1, GHz=1000, AHz=1000)
+    (tmp_path / "cut.BIN").write_bytes(bytes(w.data[: w.last_record_at + 5]))
+    (result,) = run_batch([tmp_path / "cut.BIN"], tmp_path / "out", FuserConfig(), jobs=1)
+    assert result.ok and result.samples == 399 and result.not_imported == {"incomplete_tail_bytes": 5}
+    assert f"{tmp_path / 'cut.BIN'}: not imported: incomplete_tail_bytes=5 (the log was cut short, or ends in garbage)" in batch.format_summary([result])
+
+
 def test_summary_counts_and_errors(logs, tmp_path):
     inputs = [HOVER, logs["tlog"], logs["broken"], tmp_path / "missing.tlog"]
     results = run_batch(inputs, tmp_path / "out", FuserConfig(), jobs=1)

@@ -180,6 +180,9 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "listen-no-zenoh": (["listen", "--no-zenoh"], 2, ("listen does not take --no-zenoh",)),
     "listen-rate": (["listen", "--rate", "5"], 2, ("listen does not take --rate 5",)),
     "report-rate-before-log": (["report", "--rate", "5", str(LOG)], 2, ("report does not take --rate (see",)),  # 5 was taken as the log
+    "option-twice": (["listen", "--foo", "1", "--foo", "2"], 2, ("listen does not take --foo 1 --foo 2 (see",)),
+    "config-not-a-table": (["replay", str(LOG), "-o", "out.mcap", "--config", "scalar.toml"], 2,
+                           ("bad configuration: scalar.toml: fuser must be a table of settings ([fuser]), got 3",)),
     "replay-vehicle": (["replay", str(LOG), "-o", "out.mcap", "--vehicle", "x"], 2, ("replay does not take --vehicle x",)),
     "sim-send-with-record": (["sim", "--send", "udpout:127.0.0.1:9", "-o", "sim.mcap"], 2, ("--record acts on a fuser running here",)),
     "sim-send-with-fusion": (["sim", "--send", "udpout:127.0.0.1:9", "--rate", "50", "--no-mag"], 2, ("--rate, --no-mag act",)),
@@ -201,6 +204,7 @@ def test_options_only_where_they_act(name: str, tmp_path: Path, monkeypatch: pyt
     monkeypatch.chdir(tmp_path)
     (tmp_path / "syntax.toml").write_text("[fuser]\nrate_hz = \n")
     (tmp_path / "unknown.toml").write_text("[fuser]\nmag_sigma = 0.1\n")
+    (tmp_path / "scalar.toml").write_text("fuser = 3\n")
     (tmp_path / "text.ulg").write_text("hello\n")
     if name == "import-text-named-ulg":
         pytest.importorskip("pyulog")

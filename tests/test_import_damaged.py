@@ -149,6 +149,37 @@ def test_a_ulog_cut_inside_its_last_message_says_how_much_it_left(tmp_path, left
     assert cut.imu == whole.imu - 1 and cut.attitude == whole.attitude
 
 
+def test_a_ulog_with_appended_data_cut_before_or_inside_the_appended_part_says_so(tmp_path):
+    """PX4 appends data after a crash (flag bits: DATA_APPENDED and the offset where it starts). A download cut
+    before that offset, or inside the appended part, is counted as any other cut (the walk starts at the last
+    offset within the file). Only the count is checked: pyulog returns an appended part's records as a second
+    data set of the same topic, of which the import takes one (left alone: PX4 appends only after a crash)."""
+    pytest.importorskip("pyulog")
+    w = ULogWriter(start_us=1_000_000)
+    w.topic("sensor_combined", SENSOR_COMBINED)
+    w.topic("vehicle_attitude", VEHICLE_ATTITUDE)
+
+    def at_rest(k: int) -> None:
+        w.write("sensor_combined", timestamp=1_000_000 + 4_000 * k, gyro_rad=(0.0, 0.0, 0.0), accelerometer_m_s2=GRAVITY,
+                magnetometer_ga=FIELD_NED_GAUSS)
+        if k % 5 == 2:
+            w.write("vehicle_attitude", timestamp=1_000_000 + 4_000 * k + 100, q=(1.0, 0.0, 0.0, 0.0))
+
+    for k in range(600):
+        at_rest(k)
+    last_main = w.last_message_at
+    w.data[16 + 3 + 8] |= 1  # the flag bits' first incompat byte: DATA_APPENDED
+    struct.pack_into("<Q", w.data, 16 + 3 + 16, len(w.data))  # the first appended-data offset: here
+    w.subscribe()  # the appended part subscribes again (pyulog forgets the subscriptions at each offset)
+    for k in range(600, 700):
+        at_rest(k)
+    whole = bytes(w.data)
+    for name, end, left in (("whole", len(whole), 0), ("main", last_main + 5, 5), ("appended", w.last_message_at + 7, 7)):
+        (tmp_path / f"{name}.ulg").write_bytes(whole[:end])
+        s = import_log(tmp_path / f"{name}.ulg", tmp_path / f"{name}.mcap")
+        assert s.skipped.get("incomplete_tail_bytes", 0) == left, (name, s.skipped)
+
+
 SAMPLE_ULG = Path(__file__).resolve().parents[2] / "shared" / "data" / "px4" / "sample.ulg"
 
 

@@ -38,8 +38,9 @@ class ULogWriter:
         self._message(b"F", f"{name}:".encode() + b"".join(f"{t};".encode() for t in (f"{ft} {fn}" for ft, fn in fields)))
         self._topics[name] = (len(self._topics), parsed)
 
-    def _subscribe(self) -> None:
-        """The data section begins: one subscription per declared topic (the formats all came before)."""
+    def subscribe(self) -> None:
+        """The data section begins: one subscription per declared topic (the formats all came before); again for
+        an appended-data part."""
         for name, (msg_id, _) in self._topics.items():
             self._message(b"A", struct.pack("<BH", 0, msg_id) + name.encode())
         self._subscribed = True
@@ -47,7 +48,7 @@ class ULogWriter:
     def write(self, name: str, **values) -> None:
         """One sample of a topic; every field must be given (arrays as sequences). Declare every topic first."""
         if not self._subscribed:
-            self._subscribe()
+            self.subscribe()
         msg_id, fields = self._topics[name]
         payload = bytearray(struct.pack("<H", msg_id))
         for base, count, fname in fields:
