@@ -205,10 +205,16 @@ def test_link_outage_garbage_subscriber_restart_and_recorder_kill(tmp_path: Path
     assert (rel > (killed_at - start_at) + 1.0).sum() > 300  # published long after the kill
     log = read_log(record)
     assert not log.complete
-    recorded = {e.t_ns: e.q_wxyz for e in log.estimates()}
+    recorded = [(e.t_ns, e.q_wxyz) for e in log.estimates()]
     assert len(recorded) > 100 and len(log.inputs()) > 100
-    by_tick = {d["t_ns"]: tuple(d["q_wxyz"]) for d in published}
-    assert all(by_tick[t] == q for t, q in recorded.items() if t in by_tick)  # recorded = published, bit for bit
+    # recorded = published, bit for bit. Two estimates can share a stamp (a tick that runs late is stamped no earlier
+    # than the output predictor's estimate before it, fuser/loop.py), and the recording may hold only the first of
+    # them (the kill fell between them): each recorded estimate is one of those published with its stamp
+    by_stamp: dict[int, set] = {}
+    for d in published:
+        by_stamp.setdefault(d["t_ns"], set()).add(tuple(d["q_wxyz"]))
+    assert all(q in by_stamp[t] for t, q in recorded if t in by_stamp)
+    assert sum(t in by_stamp for t, _ in recorded) > 100
     last_recorded_s = max((e.sensor_t_ns - t0) / 1e9 for e in log.estimates())
     assert last_recorded_s < killed_at - start_at + 0.1  # nothing after the kill, of course
     print(f"faults: recovered {log.describe()} from the killed recorder")
