@@ -159,6 +159,17 @@ def _largest_first(tasks: Sequence[LogTask]) -> list[LogTask]:
     return sorted(tasks, key=size, reverse=True)
 
 
+def _stop_workers(pool: ProcessPoolExecutor) -> None:
+    """Stop every worker of a broken pool before it is shut down. A worker that a submit spawns while the pool is
+    breaking is added to the pool's record of its workers only once it has started, after the pool's own clean-up
+    has terminated the others: in Python 3.11 the clean-up then waits for it forever, and so does the shutdown (a
+    worker killed while the pool was starting the second hung a batch). The record, ``_processes``, is private,
+    but it is the only handle on the workers the pool holds."""
+    workers = getattr(pool, "_processes", None) or {}
+    for process in list(workers.values()):
+        process.kill()
+
+
 def _in_processes(tasks: Sequence[LogTask], jobs: int, done: Callable[[LogResult], None]) -> None:
     """Local worker processes (spawned). A worker that dies (killed, out of memory) breaks the whole pool,
     so each task it took down is run again alone in a fresh process: only a log that kills its own
@@ -178,6 +189,8 @@ def _in_processes(tasks: Sequence[LogTask], jobs: int, done: Callable[[LogResult
                 done(future.result())
             except BrokenProcessPool:
                 broken.append(futures[future])
+        if broken:
+            _stop_workers(pool)
     for task in broken:
         with ProcessPoolExecutor(max_workers=1, mp_context=spawn) as alone:
             try:

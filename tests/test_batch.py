@@ -6,12 +6,15 @@ written into a .tlog with pymavlink), errors against the estimates the simulator
 """
 
 import io
+import multiprocessing as mp
+import multiprocessing.connection
 import os
 import signal
 import struct
 import sys
 import threading
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import pytest
@@ -292,6 +295,26 @@ def test_a_worker_that_dies_while_the_pool_starts_the_others_costs_no_log(logs, 
     assert BreaksWhileStarting.pools == 2  # the pool, and the one the broken log ran alone in
     for r, log in zip(results, inputs):
         assert Path(r.output).read_bytes() == reference[log].read_bytes()
+
+
+def test_a_broken_pools_workers_are_stopped_so_its_shutdown_cannot_wait_for_them():
+    """The killed-worker test hung once in a clean clone: pytest-timeout's stacks showed the pool's manager thread
+    joining a worker forever and the batch waiting in the pool's shutdown (in Python 3.11 a worker that a submit
+    spawns while the pool breaks is recorded after the pool's clean-up has terminated the others). The batch now
+    stops every worker the pool holds before shutting it down: here two busy workers, stopped, and the shutdown
+    returns at once instead of after their 60 s."""
+    with ProcessPoolExecutor(max_workers=2, mp_context=mp.get_context("spawn")) as pool:
+        futures = [pool.submit(time.sleep, 60.0) for _ in range(2)]
+        deadline = time.monotonic() + 60
+        while len(pool._processes) < 2 and time.monotonic() < deadline:  # both spawned
+            time.sleep(0.01)
+        workers = list(pool._processes.values())
+        assert len(workers) == 2
+        start = time.monotonic()
+        batch._stop_workers(pool)
+        assert all(mp.connection.wait([w.sentinel], 10) for w in workers)  # exited (the pool's thread reaps them)
+    assert time.monotonic() - start < 30
+    assert all(f.done() for f in futures)
 
 
 def test_a_reference_outside_the_flight_scores_nothing_and_fails_nothing(tmp_path):
