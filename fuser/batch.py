@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import multiprocessing as mp
 import os
+import shutil
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -159,6 +160,17 @@ def _largest_first(tasks: Sequence[LogTask]) -> list[LogTask]:
     return sorted(tasks, key=size, reverse=True)
 
 
+def _remove_leftovers(task: LogTask) -> None:
+    """The partial output and temporary import a worker killed while replaying ``task`` left behind."""
+    from fuser.replay import leftovers
+
+    for path in leftovers(task.log, task.output):
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
     """Stop every worker of a broken pool before it is shut down. A worker that a submit spawns while the pool is
     breaking is added to the pool's record of its workers only once it has started, after the pool's own clean-up
@@ -192,10 +204,12 @@ def _in_processes(tasks: Sequence[LogTask], jobs: int, done: Callable[[LogResult
         if broken:
             _stop_workers(pool)
     for task in broken:
+        _remove_leftovers(task)  # of the worker that died with it
         with ProcessPoolExecutor(max_workers=1, mp_context=spawn) as alone:
             try:
                 done(alone.submit(run_task, task).result())
             except BrokenProcessPool:
+                _remove_leftovers(task)
                 done(_failed(task, "the worker process died (killed, or out of memory)"))
 
 

@@ -17,6 +17,7 @@ is left behind (it is written under a temporary name and renamed at the end).
 from __future__ import annotations
 
 import errno
+import glob
 import os
 import sys
 import tempfile
@@ -40,7 +41,7 @@ from fuser.record import INPUT_TOPICS, LogContents, McapRecorder, read_log
 if TYPE_CHECKING:
     from fuser.pipeline import Pipeline
 
-__all__ = ["ReplayError", "ReplaySummary", "replay"]
+__all__ = ["ReplayError", "ReplaySummary", "leftovers", "replay"]
 
 MAX_CATCH_UP_TICKS = 1000
 """A gap in a log longer than this many ticks is skipped (counted), not filled tick by tick."""
@@ -121,13 +122,31 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     return _replay(log, out, config, progress, log.name)
 
 
+def _import_prefix(log: Path) -> str:
+    """The name a temporary import of ``log`` begins with (a hidden folder beside the output)."""
+    return f".{log.stem}.import."
+
+
+def _partial_prefix(out: Path) -> str:
+    """The name the output ``out`` has while it is written (then the writer's process id and ``.partial``)."""
+    return f".{out.name}."
+
+
+def leftovers(log: str | Path, out: str | Path) -> list[Path]:
+    """What a replay of ``log`` into ``out`` killed from outside (SIGKILL, out of memory) leaves beside ``out``:
+    its partial output and its temporary import. A replay that ends, even by an error, removes its own."""
+    log, out = Path(log), Path(out)
+    return sorted([*out.parent.glob(f"{glob.escape(_partial_prefix(out))}*.partial"),
+                   *out.parent.glob(f"{glob.escape(_import_prefix(log))}*")])
+
+
 def _replay_imported(log: Path, out: Path, config: FuserConfig, progress: TextIO | None) -> ReplaySummary:
     """A DataFlash log, PX4 ULog or BROAD trial: imported (:func:`fuser.importers.import_log`, into a temporary MCAP
     beside ``out``) and that replayed, with the reference field the import found unless ``config`` sets one: the
     same estimates as ``import LOG -o X.mcap`` then ``replay X.mcap --config X.toml``, in one step, so that a batch
     of such logs each gets its own field. What the import left out is in the summary's ``imported``."""
     start = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix=f".{log.stem}.import.", dir=out.parent) as folder:
+    with tempfile.TemporaryDirectory(prefix=_import_prefix(log), dir=out.parent) as folder:
         imported = import_log(log, Path(folder) / f"{log.stem}.mcap", progress=progress)
         if config.mag.field_ned_gauss is None:
             config = config.replace(mag={"field_ned_gauss": imported.mag_field_ned_gauss})
@@ -142,7 +161,7 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
     contents, messages = (None, None) if log.suffix == ".tlog" else _read_mcap(log)
     from fuser.pipeline import Pipeline  # noqa: PLC0415 - the model's kernels load only once the log is known to be one
 
-    partial = out.with_name(f".{out.name}.{os.getpid()}.partial")
+    partial = out.with_name(f"{_partial_prefix(out)}{os.getpid()}.partial")
     start = time.monotonic()
     samples = 0
     provenance = {} if contents is None else contents.metadata.get("bingham_fuser", {})  # reference, source, attribution

@@ -317,6 +317,24 @@ def test_a_broken_pools_workers_are_stopped_so_its_shutdown_cannot_wait_for_them
     assert all(f.done() for f in futures)
 
 
+def test_what_a_killed_worker_left_beside_its_output_is_removed_before_its_log_is_replayed_again(tmp_path):
+    """A replay killed from outside leaves its partial output (``.OUT.mcap.PID.partial``) and, for a log imported
+    on the way, its temporary import (``.STEM.import.XXXX/``); a fleet's out-dir would fill with them. Exactly
+    those go, not another log's (a name that only begins the same, or brackets that a glob would read)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    mine = [out / ".f[1].mcap.4242.partial", out / ".f[1].import.abcd"]
+    others = [out / ".f[1]x.mcap.4242.partial", out / ".f1.mcap.4242.partial", out / ".g.import.abcd", out / "f[1].mcap"]
+    mine[0].write_bytes(b"half a log")
+    mine[1].mkdir()
+    (mine[1] / "f[1].mcap").write_bytes(b"an import")
+    for path in others:
+        path.write_bytes(b"keep")
+    task = batch.LogTask(str(tmp_path / "f[1].BIN"), str(out / "f[1].mcap"), FuserConfig())
+    batch._remove_leftovers(task)
+    assert sorted(p.name for p in out.iterdir()) == sorted(p.name for p in others)
+
+
 def test_a_reference_outside_the_flight_scores_nothing_and_fails_nothing(tmp_path):
     """Truth recorded 1000 s after the flight (another clock): the log replays, with no error to report."""
     from fuser.record import McapRecorder
