@@ -329,7 +329,8 @@ def _jobs(text: str) -> int:
 
 def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``replay`` subcommand's own arguments: one log with ``-o``, or many with ``--out-dir``."""
-    parser.add_argument("log", nargs="+", help="input logs (.mcap recorded by bingham-fuser, or MAVLink .tlog)")
+    parser.add_argument("log", nargs="+", help="input logs (.mcap recorded by bingham-fuser, MAVLink .tlog, or a log import reads: "
+                                                "DataFlash .bin, PX4 .ulg, BROAD .hdf5)")
     parser.add_argument("-o", "--output", metavar="OUT.mcap", help="where to write the replayed estimates of one log")
     g = parser.add_argument_group("many logs", "replay each log into DIR/<log stem>.mcap, in parallel, with a summary "
                                   "table; the exit status is 1 if any log failed")
