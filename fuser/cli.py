@@ -158,7 +158,8 @@ def _fusion_options(p: argparse.ArgumentParser) -> None:
 
 
 def _vehicle_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--vehicle", help="vehicle name in the zenoh keys bingham_fuser/<vehicle>/... (default: sim)")
+    p.add_argument("--vehicle", help="vehicle name in the zenoh keys bingham_fuser/<vehicle>/... (default: sim for sim, vehicle for "
+                                     "run; listen hears every vehicle)")
 
 
 def _zenoh_publish_options(p: argparse.ArgumentParser) -> None:
@@ -382,6 +383,11 @@ def _check_output(path: str, option: str) -> None:
 # --------------------------------------------------------------------------- commands
 
 
+DEFAULT_VEHICLE = {"sim": "sim", "run": "vehicle", "listen": "*"}
+"""The vehicle name a command uses when none is configured: a live vehicle's estimates are not published as the
+simulator's, and a listener hears every vehicle (``*`` in a zenoh key expression)."""
+
+
 def _config(args: argparse.Namespace) -> FuserConfig:
     overrides: dict[str, Any] = {"vehicle": args.vehicle, "rate_hz": args.rate_hz}
     if args.no_mag:
@@ -398,7 +404,10 @@ def _config(args: argparse.Namespace) -> FuserConfig:
         overrides[f"link.{name}"] = getattr(args, name, None)
     if getattr(args, "any_sender", False):
         overrides["link.lock_first_autopilot"] = False
-    return load_config(args.config, overrides)
+    config = load_config(args.config, overrides)
+    if config.vehicle is None and args.command in DEFAULT_VEHICLE:
+        config = config.replace(vehicle=DEFAULT_VEHICLE[args.command])
+    return config
 
 
 def _load_config(args: argparse.Namespace) -> FuserConfig | None:

@@ -544,8 +544,10 @@ class FuserConfig(Settings):
 
     section: ClassVar[str] = "fuser"
 
-    vehicle: str = "sim"
-    """Name used in the zenoh key expressions ``bingham_fuser/<vehicle>/...``."""
+    vehicle: str | None = None
+    """Name used in the zenoh key expressions ``bingham_fuser/<vehicle>/...``. None, the default: the command's
+    own (:data:`fuser.cli.DEFAULT_VEHICLE`): ``sim`` for the simulated vehicle, ``vehicle`` for a live one, and
+    ``listen`` hears every vehicle."""
     rate_hz: Annotated[float, Range(gt=0, unit="Hz")] = 100.0
     """Filter ticks per second, each with its estimate (between them the output predictor's at every IMU sample,
     ``[fuser.extrapolation] every_imu_sample``)."""

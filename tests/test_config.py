@@ -141,7 +141,7 @@ def test_overrides_use_dotted_keys_and_are_checked_like_the_file(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text("[fuser.mag]\nenabled = true\nerror_deg = 3.0\n")
     config = load_config(path, {"mag.enabled": False, "rate_hz": 50, "vehicle": None})
-    assert not config.mag.enabled and config.mag.error_deg == 3.0 and config.rate_hz == 50.0 and config.vehicle == "sim"
+    assert not config.mag.enabled and config.mag.error_deg == 3.0 and config.rate_hz == 50.0 and config.vehicle is None
     with pytest.raises(ValueError, match="fuser.accel.lowpass_s must be > 0 s"):
         load_config(None, {"accel.lowpass_s": 0.0})
 

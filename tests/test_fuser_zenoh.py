@@ -159,3 +159,20 @@ def test_config_defaults_listen_on_loopback_only_when_not_connecting() -> None:
     assert default == ["tcp/127.0.0.1:7447"]
     assert json.loads(zenoh_config(connect=["tcp/10.0.0.1:7447"]).get_json("listen/endpoints")) == []
     assert json.loads(zenoh_config().get_json("scouting/multicast/enabled")) is False
+
+
+def test_each_command_names_its_vehicle_unless_one_is_configured(tmp_path: Path) -> None:
+    """A live vehicle's estimates are not published as the simulator's (``run`` used ``sim`` too), and ``listen``
+    hears every vehicle unless told which (``*``: :func:`subscribe` above hears ``v1`` through it)."""
+    from fuser import cli
+
+    def vehicle(argv: list[str]) -> str:
+        args, _ = cli._parser().parse_known_args(argv)
+        return cli._config(args).vehicle
+
+    assert vehicle(["sim"]) == "sim"
+    assert vehicle(["run", "--mavlink", "udpin:127.0.0.1:14550"]) == "vehicle"
+    assert vehicle(["listen"]) == "*"
+    assert vehicle(["run", "--mavlink", "udpin:127.0.0.1:14550", "--vehicle", "hexa1"]) == "hexa1"
+    (tmp_path / "fleet.toml").write_text('[fuser]\nvehicle = "hexa2"\n')
+    assert vehicle(["listen", "--config", str(tmp_path / "fleet.toml")]) == "hexa2"
