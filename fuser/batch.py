@@ -172,11 +172,11 @@ def _remove_leftovers(task: LogTask) -> None:
 
 
 def _stop_workers(pool: ProcessPoolExecutor) -> None:
-    """Stop every worker of a broken pool before it is shut down. A worker that a submit spawns while the pool is
-    breaking is added to the pool's record of its workers only once it has started, after the pool's own clean-up
-    has terminated the others: in Python 3.11 the clean-up then waits for it forever, and so does the shutdown (a
-    worker killed while the pool was starting the second hung a batch). The record, ``_processes``, is private,
-    but it is the only handle on the workers the pool holds."""
+    """Stop every worker of a broken pool before it is shut down. A worker killed while the pool was starting the
+    second hung a batch: the pool's clean-up joined a worker forever, and the shutdown waited for it. The likely
+    cause, from CPython 3.11's ``concurrent/futures/process.py``: a worker that a submit spawns while the pool is
+    breaking is added to the pool's record of its workers only once started, after the clean-up has terminated
+    the others. The record, ``_processes``, is private, but it is the only handle on the workers the pool holds."""
     workers = getattr(pool, "_processes", None) or {}
     for process in list(workers.values()):
         process.kill()
