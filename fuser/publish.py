@@ -189,9 +189,10 @@ class ZenohPublisher:
 
 
 class Subscription:
-    """Callbacks on raw payloads of ``bingham_fuser/<vehicle>/<leaf>``; ``close()`` to stop."""
+    """Callbacks on raw payloads of ``bingham_fuser/<vehicle>/<leaf>``, each called with the publishing vehicle's
+    name (``vehicle`` may be ``*``) and the payload; ``close()`` to stop."""
 
-    def __init__(self, config: zenoh.Config, vehicle: str, handlers: dict[str, Callable[[bytes], None]]) -> None:
+    def __init__(self, config: zenoh.Config, vehicle: str, handlers: dict[str, Callable[[str, bytes], None]]) -> None:
         self._session = open_session(config)
         self._subscribers = [
             self._session.declare_subscriber(key(vehicle, leaf), _on_payload(handler)) for leaf, handler in handlers.items()
@@ -207,8 +208,8 @@ class Subscription:
         self.close()
 
 
-def _on_payload(handler: Callable[[bytes], None]) -> Callable[[zenoh.Sample], None]:
-    return lambda sample: handler(sample.payload.to_bytes())
+def _on_payload(handler: Callable[[str, bytes], None]) -> Callable[[zenoh.Sample], None]:
+    return lambda sample: handler(str(sample.key_expr).split("/")[1], sample.payload.to_bytes())  # bingham_fuser/<vehicle>/<leaf>
 
 
 def subscribe(
@@ -218,9 +219,9 @@ def subscribe(
     on_status: Callable[[dict[str, Any]], None] | None = None,
 ) -> Subscription:
     """Call ``on_estimate`` (and ``on_status``) from zenoh's thread for each arriving message."""
-    handlers = {"attitude": lambda b: on_estimate(Estimate.from_dict(json.loads(b)))}
+    handlers = {"attitude": lambda _, b: on_estimate(Estimate.from_dict(json.loads(b)))}
     if on_status is not None:
-        handlers["status"] = lambda b: on_status(json.loads(b))
+        handlers["status"] = lambda _, b: on_status(json.loads(b))
     return Subscription(config, vehicle, handlers)
 
 
@@ -237,17 +238,20 @@ def format_estimate(est: Estimate) -> str:
 def listen(
     config: zenoh.Config, vehicle: str, json_output: bool = False, count: int | None = None, out: TextIO = sys.stdout
 ) -> int:
-    """Print arriving estimates, one line each (raw JSON with ``json_output``), until ``count`` or Ctrl-C.
+    """Print arriving estimates, one line each (raw JSON with ``json_output``), until ``count`` or Ctrl-C; listening
+    to every vehicle (``*``), each human line begins with the vehicle's name.
 
     Returns how many were printed.
     """
-    arrived: queue.Queue[bytes] = queue.Queue()
+    arrived: queue.Queue[tuple[str, bytes]] = queue.Queue()
     printed = 0
-    with Subscription(config, vehicle, {"attitude": arrived.put}):
+    with Subscription(config, vehicle, {"attitude": lambda name, payload: arrived.put((name, payload))}):
         try:
             while count is None or printed < count:
-                payload = arrived.get()
+                name, payload = arrived.get()
                 line = payload.decode() if json_output else format_estimate(Estimate.from_dict(json.loads(payload)))
+                if "*" in vehicle and not json_output:
+                    line = f"{name}: {line}"
                 print(line, file=out, flush=True)
                 printed += 1
         except KeyboardInterrupt:

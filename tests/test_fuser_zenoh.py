@@ -138,6 +138,19 @@ def test_subscribe_and_listen_in_process(publisher: ZenohPublisher, endpoint: st
     assert f"roll={roll:8.3f}" in lines[0] and f"yaw={yaw:8.3f}" in lines[0]
     assert f"+/-{stream[first].uncertainty_deg:.3f} deg" in lines[0]
 
+    # listening to every vehicle (listen's default), each line says whose it is
+    out = io.StringIO()
+    listener = threading.Thread(target=listen, args=(zenoh_config(connect=[endpoint]), "*"), kwargs={"count": 2, "out": out})
+    listener.start()
+    for est in estimates(1000, seed=7):
+        if not listener.is_alive():
+            break
+        publisher.publish_estimate(est)
+        time.sleep(0.01)
+    listener.join(1)
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 2 and all(line.startswith("v1: t=") for line in lines), lines
+
 
 def test_publisher_that_cannot_open_counts_and_says_so_once(endpoint: str, caplog: pytest.LogCaptureFixture) -> None:
     with socket.socket() as busy:
