@@ -120,18 +120,8 @@ def test_subscribe_and_listen_in_process(publisher: ZenohPublisher, endpoint: st
     assert statuses and all(s == status for s in statuses)
 
     # listen() prints one line per estimate; publish until it has printed 3 (its session connects when it can).
-    out = io.StringIO()
-    listener = threading.Thread(target=listen, args=(zenoh_config(connect=[endpoint]), "v1"), kwargs={"count": 3, "out": out})
-    listener.start()
     stream = estimates(1000, seed=6)
-    for est in stream:
-        if not listener.is_alive():
-            break
-        publisher.publish_estimate(est)
-        time.sleep(0.01)
-    listener.join(1)
-    lines = out.getvalue().splitlines()
-    assert len(lines) == 3 and not listener.is_alive()
+    lines = _listened(publisher, endpoint, "v1", 3, stream)
     first = [format_estimate(e) for e in stream].index(lines[0])
     assert lines == [format_estimate(e) for e in stream[first : first + 3]]
     roll, _, yaw = stream[first].euler_deg
@@ -139,17 +129,28 @@ def test_subscribe_and_listen_in_process(publisher: ZenohPublisher, endpoint: st
     assert f"+/-{stream[first].uncertainty_deg:.3f} deg" in lines[0]
 
     # listening to every vehicle (listen's default), each line says whose it is
+    stream = estimates(1000, seed=7)
+    lines = _listened(publisher, endpoint, "*", 2, stream)
+    first = [f"v1: {format_estimate(e)}" for e in stream].index(lines[0])
+    assert lines == [f"v1: {format_estimate(e)}" for e in stream[first : first + 2]]
+
+
+def _listened(publisher: ZenohPublisher, endpoint: str, vehicle: str, count: int, stream: list[Estimate]) -> list[str]:
+    """What listen() printed for ``vehicle`` while ``stream`` was published, one estimate per 10 ms, until it had
+    printed ``count`` lines."""
     out = io.StringIO()
-    listener = threading.Thread(target=listen, args=(zenoh_config(connect=[endpoint]), "*"), kwargs={"count": 2, "out": out})
+    listener = threading.Thread(target=listen, args=(zenoh_config(connect=[endpoint]), vehicle), kwargs={"count": count, "out": out})
     listener.start()
-    for est in estimates(1000, seed=7):
+    for est in stream:
         if not listener.is_alive():
             break
         publisher.publish_estimate(est)
         time.sleep(0.01)
     listener.join(1)
+    assert not listener.is_alive()
     lines = out.getvalue().splitlines()
-    assert len(lines) == 2 and all(line.startswith("v1: t=") for line in lines), lines
+    assert len(lines) == count, lines
+    return lines
 
 
 def test_publisher_that_cannot_open_counts_and_says_so_once(endpoint: str, caplog: pytest.LogCaptureFixture) -> None:
