@@ -43,7 +43,7 @@ from drivers.base import SourceError
 from drivers.scenarios import SCENARIOS
 from fuser import batch
 from fuser.config import FuserConfig, load_config
-from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError
+from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError, require_package
 from fuser.outputs import add_options as add_output_options
 
 __all__ = ["main"]
@@ -637,13 +637,6 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     return 0
 
 
-def _needs(module: str, extra: str, what: str) -> None:
-    from importlib.util import find_spec
-
-    if find_spec(module) is None:
-        raise UsageError(f"{what} needs the '{module}' package: pip install 'bingham-fuser[{extra}]' (or pip install {module})")
-
-
 def _print_not_imported(source: str, skipped: dict[str, int]) -> None:
     """What an import left out of ``source``, and a warning if the log was cut short."""
     if skipped:
@@ -686,7 +679,7 @@ def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
 
 
 def _cmd_report(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
-    _needs("matplotlib", "report", "report")
+    require_package("matplotlib", "report", "report")
     from fuser.report import write_report
 
     for line in write_report(args.log, Path(args.output)):

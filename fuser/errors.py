@@ -8,7 +8,7 @@ terms (which file, which port, which option).
 
 from __future__ import annotations
 
-__all__ = ["EXIT_RUNTIME", "EXIT_USAGE", "FuserError", "NotALogError", "UsageError"]
+__all__ = ["EXIT_RUNTIME", "EXIT_USAGE", "FuserError", "NotALogError", "UsageError", "require_package"]
 
 EXIT_RUNTIME = 1
 """It started and failed: a link or port that cannot be opened, a log with nothing readable, a write that failed."""
@@ -31,3 +31,12 @@ class UsageError(FuserError):
 
 class NotALogError(UsageError, ValueError):
     """The file given as a log is not one at all (empty, random bytes, text, another format)."""
+
+
+def require_package(module: str, extra: str, what: str) -> None:
+    """:class:`UsageError` naming the extra to install if ``module``, an optional dependency that ``what`` needs, is
+    not installed."""
+    from importlib.util import find_spec
+
+    if find_spec(module) is None:
+        raise UsageError(f"{what} needs the '{module}' package: pip install 'bingham-fuser[{extra}]' (or pip install {module})")

@@ -89,7 +89,6 @@ Reference field
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 import io
 import math
 import os
@@ -594,15 +593,14 @@ def read_sensor_log(path: str | Path, fmt: str | None = None, start_s: float = 0
     way it can fail one line for the user: :class:`~fuser.errors.UsageError` for a name no format has or a reader
     package that is not installed, :class:`~fuser.errors.NotALogError` for a file the reader refuses."""
     from fuser.dataflash import read_dataflash
-    from fuser.errors import NotALogError, UsageError
+    from fuser.errors import NotALogError, UsageError, require_package
 
     try:
         fmt = fmt or detect_format(path)
     except ValueError as exc:
         raise UsageError(str(exc)) from exc
-    package = READER_PACKAGES.get(fmt)
-    if package is not None and importlib.util.find_spec(package) is None:
-        raise UsageError(f"reading {fmt} logs needs the '{package}' package: pip install 'bingham-fuser[import]' (or pip install {package})")
+    if fmt in READER_PACKAGES:
+        require_package(READER_PACKAGES[fmt], "import", f"reading {fmt} logs")
     reader = {"broad": read_broad, "px4": read_px4, "dataflash": read_dataflash}[fmt]
     try:
         return reader(path, start_s, duration_s)
