@@ -69,7 +69,7 @@ from drivers.euler import quaternion_from_euler
 from drivers.samples import GnssSample
 from drivers.timebase import MAX_TIME_NS
 
-from .importers import DEFAULT_FIELD_NED_GAUSS, MAVLINK_SOURCE, NO_FIELD_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest, rest_field_source
+from .importers import MAVLINK_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest, in_cut, rest_field_source
 
 __all__ = ["read_dataflash"]
 
@@ -239,11 +239,8 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
     t0 = int(data[f"imu{instances[0]}"][:, 0].min()) + round(start_s * 1e9)  # the earliest: a damaged first record's may lie ahead
     t1 = None if duration_s is None else t0 + round(duration_s * 1e9)
 
-    def inside(t: int) -> bool:
-        return t >= t0 and (t1 is None or t < t1)
-
     def rows_inside(a: np.ndarray) -> np.ndarray:
-        return a[(a[:, 0] >= t0) & (a[:, 0] < t1 if t1 is not None else True)]
+        return a[in_cut(a[:, 0], t0, t1)]
 
     imus = []
     for i in instances:
@@ -262,18 +259,16 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
     for key in data:
         if key.startswith("mag") and int(key[3:]) not in instances:
             skipped["mag_without_imu"] += len(data[key])
-    att = [r for r in rows.get("att", []) if inside(r[0])]
+    att = [r for r in rows.get("att", []) if in_cut(r[0], t0, t1)]
     ref_t = np.array([r[0] for r in att], dtype=np.int64)
     ref_q = np.array([quaternion_from_euler(*np.radians(r[1:4])) for r in att]).reshape(-1, 4)
-    gnss, first_unix = _gnss([r for r in rows.get("gps", []) if inside(r[0])], rows.get("gpa", []))
+    gnss, first_unix = _gnss([r for r in rows.get("gps", []) if in_cut(r[0], t0, t1)], rows.get("gpa", []))
     ekf = _ekf_name([int(r[4]) for r in att if r[4] is not None], params)
     field_ned, field_source = field_from_gnss(gnss, first_unix), "World Magnetic Model at the first 3-D fix (declination included)"
     primary = imus[0]
     if field_ned is None and primary.mag is not None:
         rest = (primary.t_ns < primary.t_ns[0] + round(field_rest_s * 1e9)) & ~np.isnan(primary.mag[:, 0])
-        field_ned = field_from_rest(primary.accel[rest], primary.mag[rest])
-        if field_ned is not None:
-            field_source = rest_field_source(field_rest_s)
+        field_ned, field_source = field_from_rest(primary.accel[rest], primary.mag[rest]), rest_field_source(field_rest_s)
     seconds = (primary.t_ns[-1] - primary.t_ns[0]) * 1e-9
     rates = ", ".join(f"{len(s.t_ns) / max(seconds, 1e-9):.0f} Hz" for s in imus)
     return SensorData(
@@ -284,8 +279,8 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
         attribution=f"ArduPilot DataFlash log {path.name}; converted to MAVLink and cut by bingham-fuser import (the log's own terms apply).",
         source=f"ArduPilot DataFlash {path.name}: IMU instances {instances} ({rates}), {len(gnss)} GPS fixes, "
                f"{len(att)} ATT, from {start_s:g} s" + (f" for {duration_s:g} s" if duration_s else ""),
-        mag_field_ned_gauss=field_ned or DEFAULT_FIELD_NED_GAUSS,
-        field_source=field_source if field_ned else NO_FIELD_SOURCE,
+        mag_field_ned_gauss=field_ned,
+        field_source=field_source,
         attitude_stream=True,
         attitude_message="ATTITUDE",
         gnss=gnss,

@@ -123,6 +123,7 @@ __all__ = [
     "broad_quat_from_ned",
     "field_from_gnss",
     "field_from_rest",
+    "in_cut",
     "import_log",
     "read_broad",
     "read_px4",
@@ -188,7 +189,8 @@ class SensorData:
     reference: str  # "truth (...)" or "EKF2 (...)"
     attribution: str
     source: str
-    mag_field_ned_gauss: tuple[float, float, float]
+    mag_field_ned_gauss: tuple[float, float, float] | None
+    """The reference field the log gives; None: it gives none (:func:`write_mcap` writes the default)."""
     field_source: str = rest_field_source(2.0)
     attitude_stream: bool = False  # also send ref_q as the autopilot's attitude messages
     attitude_message: str = "ATTITUDE_QUATERNION"  # PX4's; ArduPilot sends ATTITUDE
@@ -293,7 +295,6 @@ def read_broad(path: str | Path, start_s: float = 0.0, duration_s: float | None 
     t_ns = np.round(np.arange(i0, i1) * (1e9 / fs)).astype(np.int64)
     # time_usec travels in microseconds: stamp on whole microseconds (1/fs is exactly 3500 us)
     t_ns = (t_ns // 1000) * 1000
-    field_ned = field_from_rest(accel[:rest], mag_g[:rest])
     return SensorData(
         imus=[ImuStream(0, t_ns, gyro, accel, mag_g)],
         ref_t_ns=t_ns.copy(),
@@ -301,14 +302,19 @@ def read_broad(path: str | Path, start_s: float = 0.0, duration_s: float | None 
         reference="truth (BROAD opt_quat, optical motion capture)",
         attribution=BROAD_ATTRIBUTION,
         source=f"BROAD trial {Path(path).stem}, samples {i0}..{i1} of {n} at {fs:.3f} Hz",
-        mag_field_ned_gauss=field_ned or DEFAULT_FIELD_NED_GAUSS,
-        field_source=rest_field_source(field_rest_s) if field_ned else NO_FIELD_SOURCE,
+        mag_field_ned_gauss=field_from_rest(accel[:rest], mag_g[:rest]),
+        field_source=rest_field_source(field_rest_s),
         extra={"movement": movement[sl], "index": np.arange(i0, i1), "q_es": q_es[sl]},
     )
 
 
 def _ulog_vec(d: dict, name: str) -> np.ndarray:
     return np.column_stack([np.asarray(d[f"{name}[{i}]"], dtype=float) for i in range(3)])
+
+
+def in_cut(t: np.ndarray, t0: int, t1: int | None) -> np.ndarray:
+    """Which times ``t`` lie in the cut ``[t0, t1)`` (``t1`` None: to the end)."""
+    return (t >= t0) & (t < t1) if t1 is not None else t >= t0
 
 
 def field_from_gnss(fixes: list[GnssSample], unix_time_s: float | None) -> tuple[float, float, float] | None:
@@ -345,7 +351,7 @@ def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None, skipped: Counter) -> 
     accuracy = np.asarray(d["s_variance_m_s"], dtype=float)
     utc = np.asarray(d.get("time_utc_usec", np.zeros(len(fix))), dtype=np.int64)
     fixes, first_utc = [], None
-    for i in np.flatnonzero(valid & (t_us >= t0_us) & (t_us < t1_us if t1_us is not None else True)):
+    for i in np.flatnonzero(valid & in_cut(t_us, t0_us, t1_us)):
         has_position = fix[i] >= 2
         fixes.append(GnssSample(
             int(t_us[i]) * 1000, int(fix[i]),
@@ -432,12 +438,12 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
         raise ValueError(f"{Path(path).name}: no sensor_combined record has a time since boot")
     t0 = int(t_us[valid].min() + start_s * 1e6)  # the earliest: a damaged first record's time may lie ahead
     t1 = None if duration_s is None else t0 + int(duration_s * 1e6)
-    keep = valid & (t_us >= t0) & (t_us < t1 if t1 is not None else True)
+    keep = valid & in_cut(t_us, t0, t1)
     gyro = _ulog_vec(sc, "gyro_rad")[keep]
     accel = _ulog_vec(sc, "accelerometer_m_s2")[keep]
     mag = _ulog_vec(sc, "magnetometer_ga")[keep] if "magnetometer_ga[0]" in sc else None
     va_t, va_valid = _ulog_times_us(va, "vehicle_attitude", skipped)
-    va_keep = va_valid & (va_t >= t0) & (va_t < t1 if t1 is not None else True)
+    va_keep = va_valid & in_cut(va_t, t0, t1)
     ref_q = np.column_stack([np.asarray(va[f"q[{i}]"], dtype=float) for i in range(4)])[va_keep]
     gnss, first_utc = _px4_gnss(topics, t0, t1, skipped)
     mag_field, field_source = None, "EKF2 earth-field state (estimator_status.states[16:19], median)"
@@ -452,7 +458,7 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
     if mag_field is None and mag is not None:
         rest = t_us[keep] < t0 + field_rest_s * 1e6
         mag_field = field_from_rest(accel[rest], mag[rest])
-        field_source = rest_field_source(field_rest_s) if mag_field else NO_FIELD_SOURCE
+        field_source = rest_field_source(field_rest_s)
     return SensorData(
         imus=[ImuStream(0, t_us[keep] * 1000, gyro, accel, mag)],
         ref_t_ns=va_t[va_keep] * 1000,
@@ -460,7 +466,7 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
         reference="EKF2 (PX4 vehicle_attitude: the autopilot's estimate, NOT ground truth)",
         attribution=PX4_ATTRIBUTION,
         source=f"PX4 ULog {Path(path).name}, sensor_combined from {start_s:g} s" + (f" for {duration_s:g} s" if duration_s else ""),
-        mag_field_ned_gauss=mag_field or DEFAULT_FIELD_NED_GAUSS,
+        mag_field_ned_gauss=mag_field,
         attitude_stream=True,
         field_source=field_source,
         gnss=gnss,
@@ -520,13 +526,16 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     out = Path(out)
     encoder = MavlinkEncoder(system=1, component=1)
     decoder = MavlinkDecoder()
-    field_ned, field_source = tuple(round(float(v), 6) for v in data.mag_field_ned_gauss), data.field_source
     skipped = Counter(data.skipped)
-    try:  # the reference must be one the configuration takes (a damaged log's EKF2 state or readings may not be)
-        MagSettings(field_ned_gauss=field_ned)  # type: ignore[arg-type]
-    except ValueError:
-        skipped["field_out_of_range"] += 1
-        field_ned, field_source = DEFAULT_FIELD_NED_GAUSS, f"{NO_FIELD_SOURCE} ({field_source}: {list(field_ned)} is not a field)"
+    if data.mag_field_ned_gauss is None:
+        field_ned, field_source = DEFAULT_FIELD_NED_GAUSS, NO_FIELD_SOURCE
+    else:
+        field_ned, field_source = tuple(round(float(v), 6) for v in data.mag_field_ned_gauss), data.field_source
+        try:  # the reference must be one the configuration takes (a damaged log's EKF2 state or readings may not be)
+            MagSettings(field_ned_gauss=field_ned)  # type: ignore[arg-type]
+        except ValueError:
+            skipped["field_out_of_range"] += 1
+            field_ned, field_source = DEFAULT_FIELD_NED_GAUSS, f"{NO_FIELD_SOURCE} ({field_source}: {list(field_ned)} is not a field)"
     metadata = {
         "source": data.source,
         "attribution": data.attribution,
