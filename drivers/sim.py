@@ -50,18 +50,19 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Iterator
+from typing import TYPE_CHECKING, Iterator
 
-import can
 import numpy as np
 from numpy.typing import NDArray
 
 from core import earth_field
 from core import quaternion as cq
 
-from .dronecan_encode import encode_dronecan
 from .mavlink_encode import MavlinkEncoder
 from .samples import AttitudeSample, GnssSample, ImuSample, Sample, SourceId
+
+if TYPE_CHECKING:
+    import can
 
 GRAVITY_M_S2 = 9.80665
 WGS84_A_M = 6378137.0
@@ -524,6 +525,8 @@ def dronecan_stream(flight: Flight, node_id: int = 10) -> Iterator[tuple[int, Ar
     """Per IMU tick: (true time, true q, CAN frames sent at that tick): RawIMU, MagneticFieldStrength2, Solution,
     and the receiver's fixes as uavcan.equipment.gnss.Fix2 (NED velocity, its speed accuracy as the velocity
     covariance, stamped with the fix time on the node's time base)."""
+    from .dronecan_encode import encode_dronecan  # here: importing dronecan parses its DSDL (a third of a second)
+
     transfer_ids: dict[type, int] = {}
     for t, q, tick in samples(flight):
         frames: list[can.Message] = []

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
-from drivers.dronecan_decode import DroneCanDecoder
 from drivers.link import LinkSettings
 from drivers.mavlink_decode import IMU_MESSAGES, MavlinkDecoder
 from drivers.samples import ImuSample, Sample
@@ -123,6 +122,8 @@ def sim_ticks(flight: Flight, transport: str = "mavlink") -> Iterator[tuple[int,
         for t, q, data in mavlink_stream(flight):
             yield t, q, decoder.feed(data)
     elif transport == "dronecan":
+        from drivers.dronecan_decode import DroneCanDecoder  # here: importing dronecan parses its DSDL
+
         can_decoder = DroneCanDecoder()
         for t, q, frames in dronecan_stream(flight):
             yield t, q, [s for frame in frames for s in can_decoder.feed(frame)]
