@@ -168,11 +168,14 @@ class LiveRunner:
         }
 
     def _feed_waiting(self, wait_ns: int) -> None:
-        """Feed every queued sample, first waiting up to ``wait_ns`` for one if ``wait_ns`` > 0."""
+        """Feed the samples queued now, first waiting up to ``wait_ns`` for one if ``wait_ns`` > 0. Only those: a
+        source that refills the queue as fast as it is read (a flood of the vehicle's own frames, 43k packets/s) kept
+        the loop here for the flood's whole length, with no tick and no status (estimates 3.1 s late); what comes
+        meanwhile waits for the next pass, the bounded queue dropping and counting the overflow."""
         try:
             if wait_ns > 0:
                 self.pipeline.feed(*self._queue.get(timeout=wait_ns / 1e9))
-            while True:
+            for _ in range(self._queue.qsize()):
                 self.pipeline.feed(*self._queue.get_nowait())
         except queue.Empty:
             pass
