@@ -10,6 +10,7 @@ not of the fault), and the recovery is scored until 12 s. The truth is the simul
   its own clock) sends random data for 4 s;
 * ``attitude_jump``: over a telemetry link (three IMUs at about 3 Hz, the autopilot's ATTITUDE at 3.5 Hz,
   ``test_fuser_slow_link.telemetry_stream``) the autopilot's attitude jumps by 30 deg of roll for 4 s;
+* ``bias_step`` (not in :data:`FAULTS`: it never ends): the gyro's x bias grows by 0.05 rad/s at 4 s and stays;
 * ``saturation_in_turn``: the same saturated gyro at 12 s, in the programme's sustained banked turns (20 deg of
   bank, 0.5 rad/s), scored until 25 s: the recovery then needs the GNSS velocity (it is fused; without it the
   accelerometer's tilt in a turn is the bank's).
@@ -138,6 +139,22 @@ def rogue_imu(seed: int = 0, start_s: float = START_S, seconds: float = 4.0) -> 
         events.append((t2 + LINK_NS, ImuSample(t2, tuple(gyro), tuple(accel), tuple(mag), second)))
     events.sort(key=lambda e: e[0])
     return _fuse(events, FuserConfig(), flight, "rogue second IMU", start_s, start_s + seconds)
+
+
+BIAS_STEP_RAD_S = 0.05
+BIAS_SCORED_UNTIL_S = 30.0
+
+
+def bias_step(seed: int = 0, step_rad_s: float = BIAS_STEP_RAD_S, gnss: bool = True) -> FaultRun:
+    """The gyro's x bias grows by ``step_rad_s`` (2.9 deg/s at the default) at 4 s and stays (a sensor fault, a
+    jump with temperature): nothing ends it, so it is scored while it lasts, until 30 s."""
+    flight = simulate(SimConfig(seed=seed, duration_s=BIAS_SCORED_UNTIL_S, imu_rate_hz=200.0))
+    rel = (flight.t_ns - flight.t_ns[0]) * 1e-9
+    gyro = flight.gyro_rad_s.copy()
+    gyro[rel >= START_S, 0] += step_rad_s
+    events = [(t + LINK_NS, s) for t, _, ss in samples(dataclasses.replace(flight, gyro_rad_s=gyro)) for s in ss]
+    return _fuse(events, FuserConfig().replace(gnss={"enabled": gnss}), flight, "gyro bias step" + ("" if gnss else ", without GNSS"),
+                 START_S, BIAS_SCORED_UNTIL_S, BIAS_SCORED_UNTIL_S)
 
 
 def attitude_jump(seed: int = 4, start_s: float = START_S, seconds: float = 4.0, jump_deg: float = 30.0) -> FaultRun:

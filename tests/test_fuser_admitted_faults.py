@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fault_flights import FAULTS, RECOVERED_DEG, saturation
+from fault_flights import FAULTS, RECOVERED_DEG, bias_step, saturation
 
 COUNTER = {"saturation": "gyro_saturated", "rogue_imu": "imu_disagree", "attitude_jump": "attitude_gated_jump",
            "saturation_in_turn": "gyro_saturated"}
@@ -69,3 +69,16 @@ def test_the_recovery_from_a_saturated_gyro_teaches_the_bias_nothing():
     r = saturation(seed=3)
     after = r.window(r.end_s, r.scored_until_s)
     assert np.all(r.error_deg[after] <= 2.0 * r.uncertainty_deg[after]), r.summary()
+
+
+def test_a_gyro_bias_appearing_in_flight_without_gnss_widens_while_gravity_is_kept_out():
+    """The same bias without GNSS: the accelerometer's tilt, kept out by the innovation gate as the state drifts
+    away, disputes the state, and the published tilt covers the reading kept out (fuser/model/gravity.py). Before
+    (ae42f20) the estimate was over twice its reported uncertainty on 32.8 % of the estimates from 4 to 30 s (25 deg
+    off reporting 6); now 14.9 %: what is left is the drift's start, which the strapdown low-pass hides from the
+    innovation (its frame drifts with the bias), and the heading after the tilt has come back. The accuracy is
+    unchanged: the accelerometer alone cannot tell a bias from a turn's false vertical (fuser/model/unaided.py)."""
+    r = bias_step(gnss=False)
+    during = r.window(r.start_s, r.end_s)
+    assert r.counters.get("accel_gated_innovation", 0) > 0
+    assert np.mean(r.error_deg[during] > 2.0 * r.uncertainty_deg[during]) < 0.2

@@ -297,3 +297,4 @@ def test_the_bias_steps_change_only_the_fields_they_update():
         for name in names:
             same = np.array_equal(changed_state[name], state[name])
             assert same != (name in changed), (step, name)
+

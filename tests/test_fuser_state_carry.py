@@ -42,7 +42,7 @@ IDENTITY = (1.0, 0.0, 0.0, 0.0)
 ZERO = (0.0, 0.0, 0.0)
 
 GRAVITY = dict(q_strapdown=quat.from_axis_angle([0.0, 0.0, 1.0], 0.3), accel_lp_m_s2=np.array([0.1, 0.0, -G]),
-               down_body=np.array([0.0, 0.6, 0.8]), converged=True, tilt_known=True, gated_s=0.25,
+               down_body=np.array([0.0, 0.6, 0.8]), converged=True, tilt_known=True, gated_s=0.25, disputed_rad=0.1,
                raw_mean_m_s2=np.array([0.2, 0.1, -G]), raw_s=0.5, measured_body=np.array([0.0, 0.8, 0.6]), gnss_checked=True,
                measured_world=np.array([0.6, 0.0, 0.8]))
 UNAIDED = dict(excess_m2_s4=3.0, norm_mean_m_s2=np.array([0.0, 0.0, -1.01 * G]), norm_mean_s=20.0, absorbed_rad=(0.02, -0.01))
@@ -100,7 +100,7 @@ def _changes(state: FilterState, call: Callable[[], Any], part: str, changed: Co
 def test_the_field_sets_these_checks_cover():
     assert STATE.names == ("attitude", "bias", "gyro", "rest", "gravity", "heading", "attitude_source", "imu_check", "model_error",
                            "velocity", "unaided")
-    assert GRAVITY_FIELDS.names == ("q_strapdown", "has_accel_lp", "accel_lp_m_s2", "down_body", "converged", "tilt_known", "gated_s",
+    assert GRAVITY_FIELDS.names == ("q_strapdown", "has_accel_lp", "accel_lp_m_s2", "down_body", "converged", "tilt_known", "gated_s", "disputed_rad",
                                     "has_raw_mean", "raw_mean_m_s2", "raw_s", "measured_body", "gnss_checked", "measured_world")
     assert UNAIDED_FIELDS.names == ("excess_m2_s4", "has_norm_mean", "norm_mean_m_s2", "norm_mean_s", "absorbed_rad")
     assert ATTITUDE_SOURCE.names == ("gated_s", "has_last_fused_ns", "last_fused_ns")
@@ -152,7 +152,7 @@ def test_the_aided_update_keeps_what_it_does_not_measure(fused):
     track = VelocityTrack(True, fused, 0.1, False, False)
     changed = {"has_accel_lp", "accel_lp_m_s2", "down_body", "has_raw_mean", "raw_mean_m_s2", "raw_s", "measured_body", "measured_world"}
     _changes(state, lambda: update_gravity_aided(P.accel, P.updates, state.gravity, state.velocity, track, TICK, 3.0, TILT),
-             "gravity", changed=changed, free={"converged", "tilt_known", "gated_s"} if fused else set())
+             "gravity", changed=changed, free={"converged", "tilt_known", "gated_s", "disputed_rad"} if fused else set())
     g = state.gravity
     assert not g.has_accel_lp and not g.has_raw_mean and g.raw_s == 0.0
     np.testing.assert_allclose(g.measured_world, [0.0, 0.0, 1.0], atol=1e-15)

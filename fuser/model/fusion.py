@@ -285,8 +285,10 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
              and not (attitudes.shape[0] > 0 and attitude_fused))
     unaided.absorbed(p.accel, s.unaided, dt, tau, plain, predicted_q, posterior_q)
     source = s.attitude_source
-    if source.has_last_fused_ns and tick_ns - source.last_fused_ns <= p.accel.lowpass_s * 1e9:
-        # the autopilot's down, fused within the tilt time constant: what the accelerometer could not see is its estimator's
+    # the autopilot's down, fused within the tilt time constant: what the accelerometer could not see, or disputes, is
+    # its estimator's
+    autopilot_down = source.has_last_fused_ns and tick_ns - source.last_fused_ns <= p.accel.lowpass_s * 1e9
+    if autopilot_down:
         unaided.cleared(p.accel, s.unaided)
 
     # 3. bias learnt in motion from the tick's corrections, each through its own model (VQF's motion bias estimation)
@@ -302,8 +304,11 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
     widening = motion.hold_variance_rad2 + ahead.variance_rad2
     if imu_fault:
         widening += math.radians(p.imu_check.fault_sigma_deg) ** 2
-    unseen_tilt, unseen_heading = unaided.unseen_variances_rad2(p.accel, s.unaided, p.mag.enabled,
-                                                                (field_ned_gauss[0], field_ned_gauss[1], field_ned_gauss[2]))
+    field = (field_ned_gauss[0], field_ned_gauss[1], field_ned_gauss[2])
+    unseen_tilt, unseen_heading = unaided.unseen_variances_rad2(p.accel, s.unaided, p.mag.enabled, field)
+    disputed_rad2 = 0.0 if autopilot_down else s.gravity.disputed_rad * s.gravity.disputed_rad
+    if disputed_rad2 > unseen_tilt:  # a gravity reading that disputes the state may be right: the state that far off
+        unseen_tilt, unseen_heading = disputed_rad2, unaided.heading_through_dip_rad2(disputed_rad2, p.mag.enabled, field)
     held_s = _heading_held_s(s.heading, s.attitude_source, tick_ns)
     if p.mag.enabled and held_s > 0.0:  # the heading held on the gyro since a magnetometer or the autopilot last corrected it
         unseen_heading += bias.held_heading_variance_rad2(p.bias, s.bias, posterior_q, held_s)

@@ -18,7 +18,7 @@ from numba import njit
 
 from fuser.model.diagnostics import FUSED, GATED, REANCHORED
 
-__all__ = ["GateVerdict", "fast_start_sigma_rad", "innovation_gate"]
+__all__ = ["GateVerdict", "fast_start_sigma_rad", "gate_rad", "innovation_gate"]
 
 
 class GateVerdict(NamedTuple):
@@ -35,7 +35,7 @@ def innovation_gate(params: np.record, gated_s: float, innovation_rad: float, si
                     dt_s: float) -> GateVerdict:
     """Verdict on one reading, given how long this update has been gated (``gated_s``) before it; ``params`` the
     ``updates`` group (:mod:`fuser.model.params`)."""
-    gate = params.innovation_gate_sigma * math.hypot(sigma_rad, math.radians(prior_doubt_deg))
+    gate = gate_rad(params, sigma_rad, prior_doubt_deg)
     ratio = (innovation_rad / gate) * (innovation_rad / gate)
     if innovation_rad <= gate:
         return GateVerdict(FUSED, 0.0, ratio)
@@ -43,6 +43,12 @@ def innovation_gate(params: np.record, gated_s: float, innovation_rad: float, si
     if gated_s >= params.reanchor_after_s:
         return GateVerdict(REANCHORED, 0.0, ratio)
     return GateVerdict(GATED, gated_s, ratio)
+
+
+@njit(cache=True, nogil=True)
+def gate_rad(params: np.record, sigma_rad: float, prior_doubt_deg: float) -> float:
+    """The gate's half-width: ``k hypot(sigma, sigma_state)`` (``params`` the ``updates`` group)."""
+    return params.innovation_gate_sigma * math.hypot(sigma_rad, math.radians(prior_doubt_deg))
 
 
 @njit(cache=True, nogil=True)

@@ -101,6 +101,7 @@ GRAVITY = _record(
     ("converged", "?"),  # once converged the raw accelerometer is not trusted again (until a gyro gap breaks the frame)
     ("tilt_known", "?"),  # a gravity reading has been fused: the heading may be measured
     ("gated_s", "f8"),  # seconds of continuous gating by innovation
+    ("disputed_rad", "f8"),  # how far the last reading that disagreed beyond its own error put down from the state (0: it agreed)
     ("has_raw_mean", "?"),
     ("raw_mean_m_s2", "f8", (3,)),  # mean of the raw readings fused before convergence, in the strapdown frame
     ("raw_s", "f8"),  # seconds of raw readings in that mean

@@ -96,7 +96,8 @@ from numba import njit
 from core.quaternion_kernels import from_array, rotation_rows, rotvec_between_world
 from fuser.model import vec3
 
-__all__ = ["absorbed", "cleared", "corrected", "excess_norm_sq_m2_s4", "followed", "learn_norm", "unaided_target", "unseen_variances_rad2"]
+__all__ = ["absorbed", "cleared", "corrected", "excess_norm_sq_m2_s4", "followed", "heading_through_dip_rad2", "learn_norm", "unaided_target",
+           "unseen_variances_rad2"]
 
 
 @njit(cache=True, nogil=True)
@@ -258,17 +259,23 @@ def unseen_variances_rad2(params: np.record, unaided: np.record, heading_measure
     """(tilt, heading) variances, rad^2 per axis, of the down the followed excess, read as a horizontal
     acceleration beyond the tolerance, biases, or of the tilt the corrections absorbed (:func:`absorbed`), whichever
     is larger (two accounts of one error: the sustained acceleration and the transient); the heading's through the
-    field's inclination (the reference field ``field_ned_gauss``), ``tan(I)^2 / 2`` times the tilt's
-    (``heading_measured`` False: no magnetometer heading, none). The absorbed tilt's direction is known, but the
+    field's inclination (:func:`heading_through_dip_rad2`). The absorbed tilt's direction is known, but the
     per-axis variance is counted on both horizontal axes."""
     north, east = unaided.absorbed_rad[0], unaided.absorbed_rad[1]
     unseen_rad = _unseen_tilt_rad(params, unaided)
     tilt_rad2 = max(unseen_rad * unseen_rad, north * north + east * east)
-    if tilt_rad2 == 0.0:
-        return 0.0, 0.0
-    if not heading_measured:
-        return tilt_rad2, 0.0
+    return tilt_rad2, heading_through_dip_rad2(tilt_rad2, heading_measured, field_ned_gauss)
+
+
+@njit(cache=True, nogil=True)
+def heading_through_dip_rad2(tilt_rad2: float, heading_measured: bool, field_ned_gauss: tuple) -> float:
+    """Heading variance (rad^2) a tilt error of per-axis variance ``tilt_rad2`` makes through the magnetometer: a down
+    wrong by ``d`` turns the field's horizontal projection by ``d tan(I) sin(a)`` (module docstring), ``tan(I)^2 / 2``
+    times the tilt's variance over the axis (``I`` the reference field ``field_ned_gauss``'s inclination;
+    ``heading_measured`` False: no magnetometer heading, none)."""
+    if tilt_rad2 == 0.0 or not heading_measured:
+        return 0.0
     north, east, down = field_ned_gauss
     field_horizontal_sq = north * north + east * east
     tan_sq = down * down / field_horizontal_sq if field_horizontal_sq > 0.0 else math.inf
-    return tilt_rad2, min(0.5 * tilt_rad2 * tan_sq, math.pi * math.pi)
+    return min(0.5 * tilt_rad2 * tan_sq, math.pi * math.pi)

@@ -116,7 +116,7 @@ from core.quaternion_kernels import from_array, rotation_rows
 from fuser.model import vec3
 from fuser.model.diagnostics import (AIDED_3D, AIDED_HORIZONTAL, FUSED, GAP, GATED, GRAVITY, INNOVATION, JUMP, NO_FIX, NO_REASON, NORM,
                                      NOT_AIDED, STALE, UNCONVERGED, UNSELECTED, VELOCITY, Diagnostic, emit, none, of)
-from fuser.model.gate import innovation_gate
+from fuser.model.gate import gate_rad, innovation_gate
 from fuser.model.gravity import drop_lp, no_reading
 from fuser.model.tick import GravityReading, TickContext, VelocityTrack
 
@@ -459,6 +459,10 @@ def update_gravity_aided(params: np.record, updates: np.record, state: np.record
     noise = math.sqrt(max(velocity.noise_var_m2_s4, 0.0)) / world_norm
     sigma = math.sqrt(correction * correction + noise * noise * max(tau_s / interval, 1.0))
     verdict = innovation_gate(updates, state.gated_s, innovation, sigma, tick.prior_doubt_deg, interval)
+    # that sigma sets the gain; the reading itself is off by the low-pass's residue and the GNSS acceleration's noise,
+    # and a reading further than those allow disputes the state, fused or not (fuser.model.gravity, Disputed)
+    own_error = math.hypot(math.radians(params.lowpass_error_deg), noise)
+    state.disputed_rad = innovation if innovation > gate_rad(updates, own_error, tick.prior_tilt_doubt_deg) else 0.0
     reason = INNOVATION if verdict.outcome == GATED else NO_REASON
     diagnostic = of(GRAVITY, verdict.outcome, reason, innovation, sigma, verdict.test_ratio, aiding)
     state.converged, state.tilt_known, state.gated_s = True, True, verdict.gated_s
