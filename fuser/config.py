@@ -214,6 +214,13 @@ class ImuCheckSettings(Settings):
     roughness_s: Seconds = 0.5
     """Time constant of each IMU's roughness (its squared sample-to-sample change of rate, low-passed): of two
     IMUs that disagree, the rougher is the one kept out."""
+    frozen_samples: Annotated[int, Range(gt=1)] = 50
+    """A gyro axis that repeats its value exactly this many samples in a row, while another IMU of the vehicle's
+    same axis does not, is frozen: that IMU is kept out until it moves again. A working MEMS gyro's noise moves
+    its reading by a least step or more most samples: quantised to 1 mrad/s (MAVLink SCALED_IMU) at rest, where a
+    repeat may be as likely as 0.6, 50 repeats happen once in 10^11 samples. PX4's sensor voting flags a sensor
+    whose data stays unchanged for 100 samples as stale (``DataValidator``); at 200 Hz 50 is 0.25 s of a stuck
+    axis averaged in."""
     fault_sigma_deg: Annotated[float, Range(ge=0, unit="deg")] = 3.0
     """While an IMU is kept out (and ``compare_within_s`` after), the estimate rests on fewer IMUs than the
     vehicle has: the published one is widened by this much, per axis."""

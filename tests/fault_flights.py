@@ -8,6 +8,8 @@ not of the fault), and the recovery is scored until 12 s. The truth is the simul
   while the vehicle flies on;
 * ``rogue_imu``: a second IMU of the vehicle (instance 1, agreeing with the first before and after, on
   its own clock) sends random data for 4 s;
+* ``stuck_imu``: the second IMU's x gyro frozen at 0.5 rad/s for 4 s (close enough to the first's rate that each
+  sample passes the per-sample comparison);
 * ``attitude_jump``: over a telemetry link (three IMUs at about 3 Hz, the autopilot's ATTITUDE at 3.5 Hz,
   ``test_fuser_slow_link.telemetry_stream``) the autopilot's attitude jumps by 30 deg of roll for 4 s;
 * ``bias_step`` (not in :data:`FAULTS`: it never ends): the gyro's x bias grows by 0.05 rad/s at 4 s and stays;
@@ -120,7 +122,9 @@ def saturation_in_turn(seed: int = 0, gnss: bool = True) -> FaultRun:
                       "saturated gyro in a banked turn" + ("" if gnss else ", without GNSS"))
 
 
-def rogue_imu(seed: int = 0, start_s: float = START_S, seconds: float = 4.0) -> FaultRun:
+def _second_imu(name: str, faulty, seed: int, start_s: float, seconds: float) -> FaultRun:
+    """A second IMU of the vehicle (instance 1, agreeing with the first before and after, on its own clock) whose
+    samples from ``start_s`` for ``seconds`` are ``faulty(rng, gyro, accel, mag)``'s."""
     flight = simulate(SimConfig(seed=seed, duration_s=SCORED_UNTIL_S, imu_rate_hz=200.0))
     rng = np.random.default_rng(seed + 11)
     rel = (flight.t_ns - flight.t_ns[0]) * 1e-9
@@ -130,15 +134,25 @@ def rogue_imu(seed: int = 0, start_s: float = START_S, seconds: float = 4.0) -> 
     for k, (t, _, ss) in enumerate(samples(flight)):
         events += [(t + LINK_NS, s) for s in ss]
         t2 = int(t) + 1_250_000  # its own clock and phase
+        gyro = flight.gyro_true_rad_s[k] + bias + 0.003 * rng.standard_normal(3)
+        accel = flight.accel_true_m_s2[k] + 0.05 * rng.standard_normal(3)
+        mag = flight.mag_true_gauss[k] + 0.003 * rng.standard_normal(3)
         if start_s <= rel[k] < start_s + seconds:
-            gyro, accel, mag = rng.uniform(-30.0, 30.0, 3), rng.uniform(-50.0, 50.0, 3), rng.uniform(-1.0, 1.0, 3)
-        else:
-            gyro = flight.gyro_true_rad_s[k] + bias + 0.003 * rng.standard_normal(3)
-            accel = flight.accel_true_m_s2[k] + 0.05 * rng.standard_normal(3)
-            mag = flight.mag_true_gauss[k] + 0.003 * rng.standard_normal(3)
+            gyro, accel, mag = faulty(rng, gyro, accel, mag)
         events.append((t2 + LINK_NS, ImuSample(t2, tuple(gyro), tuple(accel), tuple(mag), second)))
     events.sort(key=lambda e: e[0])
-    return _fuse(events, FuserConfig(), flight, "rogue second IMU", start_s, start_s + seconds)
+    return _fuse(events, FuserConfig(), flight, name, start_s, start_s + seconds)
+
+
+def rogue_imu(seed: int = 0, start_s: float = START_S, seconds: float = 4.0) -> FaultRun:
+    return _second_imu("rogue second IMU",
+                       lambda rng, g, a, m: (rng.uniform(-30.0, 30.0, 3), rng.uniform(-50.0, 50.0, 3), rng.uniform(-1.0, 1.0, 3)),
+                       seed, start_s, seconds)
+
+
+def stuck_imu(seed: int = 0, start_s: float = START_S, seconds: float = 4.0) -> FaultRun:
+    """The second IMU's x gyro frozen at 0.5 rad/s (within the per-sample tolerance of the first's rate)."""
+    return _second_imu("second IMU's x gyro stuck", lambda rng, g, a, m: ((0.5, g[1], g[2]), a, m), seed, start_s, seconds)
 
 
 BIAS_STEP_RAD_S = 0.05
@@ -178,4 +192,4 @@ def attitude_jump(seed: int = 4, start_s: float = START_S, seconds: float = 4.0,
     return _fuse(events, config, flight, "attitude source jumps 30 deg", start_s, start_s + seconds)
 
 
-FAULTS = {"saturation": saturation, "rogue_imu": rogue_imu, "attitude_jump": attitude_jump, "saturation_in_turn": saturation_in_turn}
+FAULTS = {"saturation": saturation, "rogue_imu": rogue_imu, "stuck_imu": stuck_imu, "attitude_jump": attitude_jump, "saturation_in_turn": saturation_in_turn}

@@ -8,7 +8,9 @@ specific force within ``disagree_m_s2`` of theirs. With three or more IMUs
 the comparison is against their median, so the one that disagrees is known;
 with two, the rougher of the pair (the larger low-passed squared change of
 rate from one of its samples to the next: random data is rough, a working
-gyro smooth) is the one kept out. Kept-out samples never reach the
+gyro smooth) is the one kept out. A gyro axis frozen at one value (``frozen_samples`` samples in a row
+exactly equal, while another IMU's same axis moves) is kept out whatever the comparison says: a stuck
+axis near the vehicle's rates passes it, and being the smoothest it won the pair. Kept-out samples never reach the
 integration or the updates; they are counted, and the published estimate is
 widened while the check keeps something out (``fault_sigma_deg``).
 
@@ -27,6 +29,17 @@ import numpy as np
 from numba import njit
 
 __all__ = ["check_imus"]
+
+
+@njit(cache=True, nogil=True)
+def _frozen(params: np.record, check: np.record, slot: int, others: np.ndarray, n_others: int) -> bool:
+    """The IMU in ``slot`` has a gyro axis frozen while one of the ``others``' same axis moves (module docstring)."""
+    for c in range(3):
+        if check.repeats[slot, c] >= params.frozen_samples:
+            for m in range(n_others):
+                if check.repeats[others[m], c] < params.frozen_samples:
+                    return True
+    return False
 
 
 @njit(cache=True, nogil=True)
@@ -89,6 +102,8 @@ def check_imus(params_imu_check: np.record, check: np.record, imu: np.ndarray) -
         roughness = 0.0  # the first sample of its IMU: none
         if check.seen[slot]:
             bx, by, bz = check.gyro_rad_s[slot, 0], check.gyro_rad_s[slot, 1], check.gyro_rad_s[slot, 2]
+            for c in range(3):
+                check.repeats[slot, c] = check.repeats[slot, c] + 1 if gyro[c] == check.gyro_rad_s[slot, c] else 0
             step2 = (gyro[0] - bx) * (gyro[0] - bx) + (gyro[1] - by) * (gyro[1] - by) + (gyro[2] - bz) * (gyro[2] - bz)
             gain = min(1.0, (t - check.t_ns[slot]) * 1e-9 / params.roughness_s)
             before = check.roughness_rad2_s2[slot]
@@ -120,6 +135,8 @@ def check_imus(params_imu_check: np.record, check: np.record, imu: np.ndarray) -
             ref_accel = (check.accel_m_s2[o, 0], check.accel_m_s2[o, 1], check.accel_m_s2[o, 2])
             ok = (_agrees(params, gyro, accel, ref_gyro, ref_accel, (t - check.t_ns[o]) * 1e-9)
                   or roughness <= check.roughness_rad2_s2[o])
+        if params.enabled and ok and n_others >= 1:
+            ok = not _frozen(params, check, slot, others, n_others)
         good[i] = ok
         if not ok:
             out += 1

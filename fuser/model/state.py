@@ -141,6 +141,7 @@ IMU_CHECK = _record(
     ("gyro_rad_s", "f8", (MAX_IMUS, 3)),
     ("accel_m_s2", "f8", (MAX_IMUS, 3)),
     ("roughness_rad2_s2", "f8", (MAX_IMUS,)),
+    ("repeats", "i8", (MAX_IMUS, 3)),  # per IMU slot and gyro axis, how many samples in a row repeated the one before exactly
     ("has_last_fault_ns", "?"),
     ("last_fault_ns", "i8"),  # when a sample was last kept out
 )
