@@ -31,7 +31,7 @@ from numba import njit
 __all__ = ["check_imus"]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")  # inlined: numba types the loop's count as a literal 0 in one call and compiles it twice
 def _frozen(params: np.record, check: np.record, slot: int, others: np.ndarray, n_others: int) -> bool:
     """The IMU in ``slot`` has a gyro axis frozen while one of the ``others``' same axis moves (module docstring)."""
     for c in range(3):
