@@ -11,9 +11,14 @@ that arrives before any autopilot is heard as ``no_vehicle_yet``.
 Signing (MAVLink 2 message signing, MAVLink developer guide "Message Signing"). With a key,
 only frames whose signature verifies are used; pymavlink's ``MAVLink.signing`` does the
 cryptography (SHA-256 over key, header, payload, CRC, link id and timestamp, first 48 bits).
-The key file holds either exactly 32 bytes, the raw secret key, or a passphrase (UTF-8 text,
+The key file holds either the raw secret key, exactly 32 bytes, or a passphrase (UTF-8 text,
 surrounding whitespace and the final newline removed) whose SHA-256 digest is the key, as
-MAVProxy's ``signing setup PASSPHRASE`` and Mission Planner derive it.
+MAVProxy's ``signing setup PASSPHRASE`` and Mission Planner derive it. A file of 32 bytes is the
+raw key unless it is one line of text: UTF-8 that ends in a newline and holds no other control
+character than tabs and a carriage return. So a 31-character passphrase written by ``echo`` or an
+editor (32 bytes with its newline) is a passphrase, and a random key is taken as text only if it
+ends in 0x0a and its other bytes make printable UTF-8 (fewer than one key in 10^12). A passphrase of
+exactly 32 characters must end in a newline, or it is read as the raw key.
 """
 
 from __future__ import annotations
@@ -32,6 +37,19 @@ __all__ = ["LinkSettings", "SIGNING_KEY_BYTES"]
 SIGNING_KEY_BYTES = 32
 """Length of a MAVLink 2 secret key (the SETUP_SIGNING message's ``secret_key``)."""
 _DIALECT_NAME = re.compile(r"[A-Za-z0-9_]+")
+_CONTROL = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
+"""Control characters other than a tab, a newline and a carriage return: not in a line of text."""
+
+
+def _is_text_line(data: bytes) -> bool:
+    """Whether ``data`` is one line of text: UTF-8 ending in a newline, without other control characters."""
+    if not data.endswith(b"\n") or _CONTROL.search(data) or b"\n" in data[:-1]:
+        return False
+    try:
+        data.decode("utf-8")
+    except UnicodeDecodeError:
+        return False
+    return True
 
 
 def _check_id(key: str, value: Any) -> None:
@@ -84,7 +102,8 @@ class LinkSettings:
         return cls(**table)
 
     def signing_key(self) -> bytes | None:
-        """The 32-byte secret key read from ``signing_key_file`` (None without one); ``SourceError`` if unreadable."""
+        """The 32-byte secret key read from ``signing_key_file`` (None without one): the file's bytes if it holds 32 that
+        are not a line of text, else the SHA-256 of the passphrase it holds (module docstring); ``SourceError`` if unreadable."""
         if self.signing_key_file is None:
             return None
         try:
@@ -92,7 +111,7 @@ class LinkSettings:
                 data = f.read(4096)
         except OSError as exc:
             raise SourceError(f"link.signing_key_file: cannot read {self.signing_key_file}: {exc.strerror}") from exc
-        if len(data) == SIGNING_KEY_BYTES:
+        if len(data) == SIGNING_KEY_BYTES and not _is_text_line(data):
             return data
         try:
             passphrase = data.decode("utf-8").strip()

@@ -144,6 +144,20 @@ def test_a_passphrase_file_gives_the_key_mavproxy_derives(tmp_path):
     assert times(decoder.feed(frame(imu(7), key=mavproxy_key))) == [7]
 
 
+def test_a_passphrase_line_of_32_bytes_is_a_passphrase_not_a_raw_key(tmp_path):
+    """31 characters and the newline an editor or ``echo`` ends the file with: 32 bytes, but a line of text."""
+    passphrase = b"thirty-one characters long, ok."
+    assert len(passphrase + b"\n") == 32
+    decoder = signed_decoder(tmp_path, passphrase + b"\n")
+    assert times(decoder.feed(frame(imu(7), key=hashlib.sha256(passphrase).digest()))) == [7]
+
+
+@pytest.mark.parametrize("key", [KEY[:-1] + b"\n", bytes(31) + b"\n", b"\xff" * 31 + b"\n"], ids=["text_like", "zeros", "not_utf8"])
+def test_a_raw_key_ending_in_a_newline_byte_is_still_the_raw_key(tmp_path, key):
+    """One random key in 256 ends in 0x0a: it is a raw key unless the whole file is printable UTF-8 text."""
+    assert times(signed_decoder(tmp_path, key).feed(frame(imu(7), key=key))) == [7]
+
+
 @pytest.mark.parametrize("content", [None, b"", b"\xff\xfe\x00bad utf-8 \xc3"])
 def test_an_unusable_key_file_is_a_source_error_naming_the_setting(tmp_path, content):
     path = tmp_path / "key" if content is None else key_file(tmp_path, content)
