@@ -23,16 +23,18 @@ Signing (MAVLink 2 message signing, MAVLink developer guide "Message Signing"): 
 pymavlink's ``MAVLink.signing`` verifies each signature (SHA-256 of key + frame, 48 bits) and its
 timestamp (newer than the last of the same (link id, system, component) stream, and for a new
 stream at most one minute older than the newest seen). Refusals are counted as ``unsigned`` (no
-signature, or a MAVLink 1 frame), ``bad_signature`` or ``replayed`` (a timestamp not newer than
-its stream's). pymavlink records a frame's timestamp before checking its signature, so one forged
-frame with a far-future timestamp would make every genuine frame after it look replayed, and
-forged frames from new (link, system, component) triples would each add a stream entry; the
-stream's previous timestamp is restored after every refusal, so only verified frames change the
-signing state.
+signature, or a MAVLink 1 frame), ``bad_signature`` (a signature that does not verify, whatever
+its timestamp: the signature is judged first) or ``replayed`` (a signature that verifies, with a
+timestamp not newer than its stream's, or a new stream's over a minute old). pymavlink records
+a frame's timestamp before checking its signature, so one forged frame with a far-future
+timestamp would make every genuine frame after it look replayed, and forged frames from new
+(link, system, component) triples would each add a stream entry; the stream's previous timestamp
+is restored after every refusal, so only verified frames change the signing state.
 """
 
 from __future__ import annotations
 
+import hashlib
 import time
 from typing import Any, Callable
 
@@ -41,8 +43,7 @@ from .base import ReasonLog
 SIGNING_EPOCH_S = 1_420_070_400
 """2015-01-01T00:00:00Z, the origin of MAVLink 2 signing timestamps (10 us units)."""
 _SIGNING_UNITS_PER_S = 100_000
-_NEW_STREAM_MAX_AGE = 60 * _SIGNING_UNITS_PER_S
-"""pymavlink's limit: a new signed stream may start at most one minute behind the newest timestamp."""
+_SIGNATURE_BYTES = 6
 _MAGIC = (0xFE, 0xFD)
 _V2 = 0xFD
 
@@ -50,6 +51,12 @@ _V2 = 0xFD
 def signing_timestamp_now() -> int:
     """The current time in MAVLink signing units, as pymavlink's ``setup_signing`` starts from."""
     return int((max(time.time(), SIGNING_EPOCH_S) - SIGNING_EPOCH_S) * _SIGNING_UNITS_PER_S)
+
+
+def _signature_verifies(key: bytes, msgbuf: bytes | bytearray) -> bool:
+    """Whether a signed MAVLink 2 frame's signature is the one ``key`` gives (its timestamp not judged)."""
+    digest = hashlib.sha256(key + bytes(msgbuf[:-_SIGNATURE_BYTES])).digest()
+    return digest[:_SIGNATURE_BYTES] == bytes(msgbuf[-_SIGNATURE_BYTES:])
 
 
 def _frame_reason(text: str) -> str:
@@ -183,7 +190,8 @@ class FrameParser:
         mav.expected_length = 8
 
     def _checked_signature(self, check: Callable[[bytearray, int, int], bool]) -> Callable[[bytearray, int, int], bool]:
-        """pymavlink's signature check, undoing its state change when it refuses and naming why."""
+        """pymavlink's signature check, undoing its state change when it refuses and naming why: ``bad_signature``
+        if the signature does not verify (judged first, whatever the timestamp), else ``replayed`` (the timestamp)."""
         signing = self.mav.signing
 
         def checked(msgbuf: bytearray, system: int, component: int) -> bool:
@@ -195,9 +203,7 @@ class FrameParser:
                 signing.stream_timestamps.pop(key, None)
             else:
                 signing.stream_timestamps[key] = before
-            stamp = int.from_bytes(msgbuf[-12:-6], "little")
-            old = stamp <= before if before is not None else stamp + _NEW_STREAM_MAX_AGE < signing.timestamp
-            self._signature_fault = "replayed" if old else "bad_signature"
+            self._signature_fault = "replayed" if _signature_verifies(signing.secret_key, msgbuf) else "bad_signature"
             return False
 
         return checked

@@ -123,6 +123,16 @@ def test_a_replayed_signed_frame_is_refused(tmp_path):
     assert decoder.stats["replayed"] == 1
 
 
+@pytest.mark.parametrize("timestamp, link_id", [(NOW + 1, 0), (NOW - 6_000_001, 3)], ids=["not_newer", "new_stream_too_old"])
+def test_a_wrong_signature_is_a_bad_signature_whatever_its_timestamp(tmp_path, timestamp, link_id):
+    """The signature is judged first: a frame of another key is not counted as replayed for an old timestamp."""
+    decoder = signed_decoder(tmp_path)
+    good = frame(imu(1_000), key=KEY, timestamp=NOW + 5)
+    forged = frame(imu(1_100), key=bytes(32), timestamp=timestamp, link_id=link_id, seq=1)
+    assert times(decoder.feed(good + forged)) == [1_000]
+    assert decoder.stats["bad_signature"] == 1 and decoder.stats["replayed"] == 0
+
+
 def test_a_forged_future_timestamp_does_not_lock_out_the_genuine_sender(tmp_path):
     """pymavlink stores a frame's signing timestamp before it checks the signature: one forged frame
     stamped far ahead makes every genuine frame after it look replayed. The decoder undoes that."""
