@@ -371,6 +371,15 @@ def _check_listen(args: argparse.Namespace) -> None:
         _warn("--zenoh-connect overrides --zenoh-listen: the listener connects to the --zenoh-connect endpoints only")
 
 
+def _check_signing_key(config: FuserConfig) -> None:
+    """The signing key file, if one is named, can be read and holds a key: a missing or unusable key file is an input
+    file the command cannot run without (exit 2), found before any link or log is opened."""
+    try:
+        config.link.signing_key()
+    except SourceError as exc:
+        raise UsageError(str(exc)) from exc
+
+
 def _check_output(path: str, option: str) -> None:
     """A file can be written at ``path``: its folder exists and is writable."""
     folder = Path(path).resolve().parent
@@ -573,6 +582,7 @@ def _extra_outputs(stack: ExitStack, config: FuserConfig, args: argparse.Namespa
 
 def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
     _check_run(args)
+    _check_signing_key(config)
     if args.record:
         _check_output(args.record, "--record")
     from drivers.sources import DroneCanSource, MavlinkSource
@@ -614,6 +624,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
 def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     from fuser.replay import replay
 
+    _check_signing_key(config)
     if batch.is_batch(args):
         return batch.command(args, config)
     log = args.log[0]

@@ -172,6 +172,10 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "run-record-into-missing-folder": (["run", "--mavlink", "udpin:127.0.0.1:9", "-o", "no/rec.mcap"], 2, ("no/rec.mcap", "does not exist")),
     "replay-into-missing-folder": (["replay", str(LOG), "-o", "no/out.mcap"], 2, ("no/out.mcap", "does not exist")),
     "config-missing": (["replay", str(LOG), "-o", "out.mcap", "--config", "none.toml"], 2, ("none.toml",)),
+    "run-signing-key-missing": (["run", "--mavlink", "udpin:127.0.0.1:9", "--no-zenoh", "--signing-key-file", "no.key"], 2,
+                                ("link.signing_key_file: cannot read no.key", "No such file")),
+    "replay-signing-key-missing": (["replay", str(LOG), "-o", "out.mcap", "--signing-key-file", "no.key"], 2, ("link.signing_key_file: cannot read no.key",)),
+    "replay-signing-key-empty": (["replay", str(LOG), "-o", "out.mcap", "--signing-key-file", "empty.key"], 2, ("empty.key", "is empty")),
     "config-syntax": (["replay", str(LOG), "-o", "out.mcap", "--config", "syntax.toml"], 2, ("syntax.toml", "line 2")),
     "config-unknown-key": (["replay", str(LOG), "-o", "out.mcap", "--config", "unknown.toml"], 2,
                            ("bad configuration: unknown.toml: fuser.mag_sigma is not a setting",)),
@@ -206,6 +210,7 @@ def test_options_only_where_they_act(name: str, tmp_path: Path, monkeypatch: pyt
     (tmp_path / "unknown.toml").write_text("[fuser]\nmag_sigma = 0.1\n")
     (tmp_path / "scalar.toml").write_text("fuser = 3\n")
     (tmp_path / "text.ulg").write_text("hello\n")
+    (tmp_path / "empty.key").write_bytes(b"")
     if name == "import-text-named-ulg":
         pytest.importorskip("pyulog")
     before = {p.name for p in tmp_path.iterdir()}
