@@ -117,17 +117,12 @@ def learn_norm(params: np.record, unaided: np.record, gravity: np.record, accel_
     frame, into the long-run mean (a growing window up to ``accel.unaided_norm_window_s``, then a low-pass of
     that time constant), with or without GNSS. A gyro gap breaks the frame: the mean's direction in it is lost,
     its norm (the sensor's) is not, so the mean is kept along the last measured down (``gravity.down_body``)
-    and learns again from the next tick. A tick whose specific force is further from ``g`` than the gravity update's
-    norm gate (``accel.norm_gate_fraction``) is not learnt from: a shock, not gravity as the sensor reads it, whose
-    vector does not average out of a window still short (0.1 s of +-100 m/s^2 at 4 s of the simulated hover moved the
-    learnt norm enough that the banked turns from 10 s were read as 18 deg of unseen tilt, with 2 deg of error)."""
+    and learns again from the next tick."""
     to_s = rotation_rows(from_array(gravity.q_strapdown))
     if unaided.has_norm_mean and frame_broken:
         norm = vec3.norm(vec3.load(unaided.norm_mean_m_s2))
         dx, dy, dz = vec3.load(gravity.down_body)
         vec3.store(unaided.norm_mean_m_s2, vec3.mat_vec(to_s, (-norm * dx, -norm * dy, -norm * dz)))
-        return
-    if abs(vec3.norm(accel_body_m_s2) - params.gravity_m_s2) > params.norm_gate_fraction * params.gravity_m_s2:
         return
     f_s = vec3.mat_vec(to_s, accel_body_m_s2)
     if not unaided.has_norm_mean:
