@@ -28,6 +28,7 @@ import argparse
 import dataclasses
 import ipaddress
 import logging
+import math
 import os
 import re
 import signal
@@ -121,6 +122,18 @@ def _can_bus(text: str) -> str:
     return text
 
 
+def _seconds(text: str, positive: bool = True) -> float:
+    """argparse type of a number of seconds: finite, and > 0 if ``positive`` (a ``--duration``: nan or inf would run
+    forever, 0 or less stop at once) else >= 0 (``import --start``)."""
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not math.isfinite(seconds) or seconds < 0 or (positive and seconds == 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number of seconds {'>' if positive else '>='} 0, got {text!r}")
+    return seconds
+
+
 def _outage(text: str) -> tuple[float, float]:
     at, _, seconds = text.partition(":")
     try:
@@ -207,7 +220,7 @@ def _add_sim(sub: Any) -> None:
     p.add_argument("--scenario", choices=("full",) + tuple(SCENARIOS), default="full",
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
                         + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()).replace("%", "%%"))  # argparse %-formats help
-    p.add_argument("--duration", type=float, metavar="S", help=f"seconds of flight with --scenario full (default: {SIM_DURATION_S:g})")
+    p.add_argument("--duration", type=_seconds, metavar="S", help=f"seconds of flight with --scenario full (default: {SIM_DURATION_S:g})")
     p.add_argument("--speed", type=float, metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
     p.add_argument("--transport", choices=("mavlink", "dronecan"), help="what the vehicle speaks (default: mavlink)")
     p.add_argument("--seed", type=int, default=0, help="simulation seed (default: 0)")
@@ -238,7 +251,7 @@ def _add_run(sub: Any) -> None:
     g.add_argument("--can", action="append", default=[], type=_can_bus, metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
     g.add_argument("--bitrate", type=int, help=f"CAN bitrate for interfaces that set one, e.g. slcan (default: {DEFAULT_BITRATE})")
     p.add_argument("--attitude-sigma", type=float, dest="attitude_sigma_deg", metavar="DEG", help="also fuse the autopilot's attitude with this noise")
-    p.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--duration", type=_seconds, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs and estimates (in a separate process)")
 
 
@@ -268,8 +281,8 @@ def _add_import(sub: Any) -> None:
     p.add_argument("source", help="BROAD trial .hdf5, PX4 .ulg or ArduPilot .bin")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP to write")
     p.add_argument("--format", choices=("broad", "px4", "dataflash"), help="input format (default: from the file extension)")
-    p.add_argument("--start", type=float, default=0.0, metavar="S", help="skip the first S seconds (default: 0)")
-    p.add_argument("--duration", type=float, metavar="S", help="keep only S seconds (default: all)")
+    p.add_argument("--start", type=partial(_seconds, positive=False), default=0.0, metavar="S", help="skip the first S seconds (default: 0)")
+    p.add_argument("--duration", type=_seconds, metavar="S", help="keep only S seconds (default: all)")
     p.add_argument("--config-out", metavar="FILE.toml", help="TOML with the measured reference field, for replay --config "
                    "(default: OUT.toml beside the MCAP; '' to skip)")
 

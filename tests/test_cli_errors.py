@@ -235,6 +235,30 @@ def test_version(capsys: pytest.CaptureFixture) -> None:
     assert capsys.readouterr().out.strip() == f"bingham-fuser {version('bingham-fuser')}"
 
 
+DURATION_COMMANDS = {"run": ["run", "--mavlink", "udpin:127.0.0.1:9"], "sim": ["sim"], "import": ["import", "x.ulg", "-o", "x.mcap"]}
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "-5", "0", "soon"])
+@pytest.mark.parametrize("command", list(DURATION_COMMANDS))
+def test_a_duration_is_a_finite_positive_number_of_seconds(command: str, value: str, capsys: pytest.CaptureFixture) -> None:
+    """nan and inf ran forever, 0 and negative durations stopped at once with exit 0: all are refused while parsing."""
+    from fuser.cli import main
+
+    assert main([*DURATION_COMMANDS[command], f"--duration={value}"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("bingham-fuser: argument --duration: ") and "a finite number of seconds > 0" in err[0], err
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-5"])
+def test_an_import_start_is_a_finite_number_of_seconds_from_zero(value: str, capsys: pytest.CaptureFixture) -> None:
+    """nan and inf failed deep in the reader (ValueError, OverflowError), -5 was taken as 0."""
+    from fuser.cli import main
+
+    assert main([*DURATION_COMMANDS["import"], f"--start={value}"]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1 and err[0].startswith("bingham-fuser: argument --start: ") and "a finite number of seconds >= 0" in err[0], err
+
+
 @pytest.mark.parametrize(("argv", "warning"), [
     (["sim", "--scenario", "hover", "--duration", "30"], "--scenario hover is a flight of fixed length: it overrides --duration 30"),
     (["run", "--mavlink", "udpin:0.0.0.0:14550", "--baud", "115200"], "--baud 115200 is ignored"),
