@@ -394,12 +394,29 @@ def _check_signing_key(config: FuserConfig) -> None:
 
 
 def _check_output(path: str, option: str) -> None:
-    """A file can be written at ``path``: its folder exists and is writable."""
-    folder = Path(path).resolve().parent
+    """A file can be written at ``path``: not a folder nor a read-only file, in a folder that exists and is writable.
+    Checked before the command starts, so it fails at once with one line (a recorder process would die on it)."""
+    target = Path(path)
+    if target.is_dir():
+        raise UsageError(f"cannot write {option} {path}: it is a folder; name a file (in it, or elsewhere)")
+    if target.exists() and not os.access(target, os.W_OK):
+        raise UsageError(f"cannot write {option} {path}: the file is not writable")
+    folder = target.resolve().parent
     if not folder.is_dir():
         raise UsageError(f"cannot write {option} {path}: the folder {folder} does not exist")
     if not os.access(folder, os.W_OK):
         raise UsageError(f"cannot write {option} {path}: the folder {folder} is not writable")
+
+
+def _check_output_folder(path: str, option: str) -> None:
+    """A folder can be written at ``path``, or created there (with its parents): neither it nor an ancestor is a file."""
+    target = Path(path)
+    existing = next((p for p in (target, *target.parents) if p.exists()), Path.cwd())
+    if not existing.is_dir():
+        where = "it is a file" if existing == target else f"{existing} is a file"
+        raise UsageError(f"cannot write {option} {path}: {where}, not a folder")
+    if not os.access(existing, os.W_OK):
+        raise UsageError(f"cannot write {option} {path}: the folder {existing} is not writable")
 
 
 # --------------------------------------------------------------------------- commands
@@ -517,6 +534,8 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
     if args.send or args.send_can:
         from fuser.sender import run_sender
 
+        if args.truth:
+            _check_output(args.truth, "--truth")
         return run_sender(args, _stop_on_signal())
     if args.record:
         _check_output(args.record, "--record")
@@ -544,9 +563,19 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         run = run_sim(pipeline, flight, args.transport, args.speed, ([rec.write_truth] if rec else []) + extra.truth, stop, clock=clock,
                       status_sinks=_status_sinks(pub, rec, extra), health=_health(pub, rec, extra))
     print(f"sim: {run.samples} samples -> {run.estimates} estimates in {run.wall_s:.1f} s")
+    if isinstance(rec, RecorderProcess):
+        _check_recorder(rec, args.record)
     if args.record:
         _print_scores(args.record)
     return 0
+
+
+def _check_recorder(rec: Any, path: str) -> None:
+    """A recorder process that died during the run has lost what came after (estimates, inputs, status): the command
+    failed (exit 1), whatever else it did. Called once the recorder is closed (``close`` then says how it ended)."""
+    if not rec.close():
+        raise FuserError(f"the recorder process died during the run: {path} holds only what it had written (up to its "
+                         f"last complete chunk); {rec.dropped} writes after it were dropped")
 
 
 def _warm_up(config: FuserConfig) -> None:
@@ -631,6 +660,8 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
                                                          file=sys.stderr, flush=True))
     print(f"run: {status['estimates']} estimates; loop {status['loop']}; latency {status['latency']}")
     _print_inputs(source_report(name, src) for name, src in sources.items())
+    if rec is not None:
+        _check_recorder(rec, args.record)
     return 0
 
 
@@ -639,6 +670,8 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
 
     _check_signing_key(config)
     if batch.is_batch(args):
+        if args.out_dir is not None:
+            _check_output_folder(args.out_dir, "--out-dir")
         return batch.command(args, config)
     log = args.log[0]
     _check_output(args.output, "--output")
@@ -678,6 +711,8 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
         raise UsageError(f"import: no such file: {args.source}")
     _check_output(args.output, "--output")
     cfg_out = str(Path(args.output).with_suffix(".toml")) if args.config_out is None else (args.config_out or None)
+    if cfg_out is not None:
+        _check_output(cfg_out, "--config-out")
     try:
         data = read_sensor_log(args.source, args.format, args.start, args.duration)
     except UsageError as exc:
@@ -704,6 +739,7 @@ def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
 
 def _cmd_report(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     require_package("matplotlib", "report", "report")
+    _check_output_folder(args.output, "--output")
     from fuser.report import write_report
 
     for line in write_report(args.log, Path(args.output)):

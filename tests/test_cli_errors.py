@@ -171,6 +171,20 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "run-without-inputs": (["run", "--no-zenoh"], 2, ("--mavlink",)),
     "run-record-into-missing-folder": (["run", "--mavlink", "udpin:127.0.0.1:9", "-o", "no/rec.mcap"], 2, ("no/rec.mcap", "does not exist")),
     "replay-into-missing-folder": (["replay", str(LOG), "-o", "no/out.mcap"], 2, ("no/out.mcap", "does not exist")),
+    # an output that names a folder (or a folder output that names a file): refused before anything runs
+    "run-record-into-a-folder": (["run", "--mavlink", "udpin:127.0.0.1:9", "--no-zenoh", "--duration", "1", "-o", "adir"], 2,
+                                 ("cannot write --record adir: it is a folder",)),
+    "sim-record-into-a-folder": (["sim", "--scenario", "hover", "--speed", "0", "--no-zenoh", "-o", "adir"], 2,
+                                 ("cannot write --record adir: it is a folder",)),
+    "sim-truth-into-a-folder": (["sim", "--scenario", "hover", "--send", "udpout:127.0.0.1:9", "--truth", "adir"], 2,
+                                ("cannot write --truth adir: it is a folder",)),
+    "replay-into-a-folder": (["replay", str(LOG), "-o", "adir"], 2, ("cannot write --output adir: it is a folder",)),
+    "replay-out-dir-a-file": (["replay", str(LOG), str(LOG), "--out-dir", "afile"], 2, ("cannot write --out-dir afile: it is a file",)),
+    "import-into-a-folder": (["import", "text.ulg", "-o", "adir"], 2, ("cannot write --output adir: it is a folder",)),
+    "import-config-out-a-folder": (["import", "text.ulg", "-o", "x.mcap", "--config-out", "adir"], 2,
+                                   ("cannot write --config-out adir: it is a folder",)),
+    "report-into-a-file": (["report", str(LOG), "-o", "afile"], 2, ("cannot write --output afile: it is a file",)),
+    "report-under-a-file": (["report", str(LOG), "-o", "afile/rep"], 2, ("cannot write --output afile/rep: afile is a file",)),
     "config-missing": (["replay", str(LOG), "-o", "out.mcap", "--config", "none.toml"], 2, ("none.toml",)),
     "run-signing-key-missing": (["run", "--mavlink", "udpin:127.0.0.1:9", "--no-zenoh", "--signing-key-file", "no.key"], 2,
                                 ("link.signing_key_file: cannot read no.key", "No such file")),
@@ -211,6 +225,8 @@ def test_options_only_where_they_act(name: str, tmp_path: Path, monkeypatch: pyt
     (tmp_path / "scalar.toml").write_text("fuser = 3\n")
     (tmp_path / "text.ulg").write_text("hello\n")
     (tmp_path / "empty.key").write_bytes(b"")
+    (tmp_path / "adir").mkdir()
+    (tmp_path / "afile").write_bytes(b"")
     if name == "import-text-named-ulg":
         pytest.importorskip("pyulog")
     before = {p.name for p in tmp_path.iterdir()}
