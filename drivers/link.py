@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import ipaddress
 import os
 import re
 from dataclasses import dataclass, fields
@@ -32,13 +33,39 @@ from typing import Any, Mapping
 
 from .base import SourceError
 
-__all__ = ["LinkSettings", "SIGNING_KEY_BYTES"]
+__all__ = ["LinkSettings", "SIGNING_KEY_BYTES", "check_connection"]
 
 SIGNING_KEY_BYTES = 32
 """Length of a MAVLink 2 secret key (the SETUP_SIGNING message's ``secret_key``)."""
 _DIALECT_NAME = re.compile(r"[A-Za-z0-9_]+")
 _CONTROL = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 """Control characters other than a tab, a newline and a carriage return: not in a line of text."""
+
+
+_NETWORK_PREFIXES = ("tcp", "tcpin", "udpin", "udpout", "udpbcast", "udp")
+
+
+def check_connection(text: str) -> str:
+    """``text`` if it has the form of a connection string pymavlink opens (a link in, or ``--mavlink-out``), else
+    ``ValueError`` saying what is expected; whether it opens is not tried."""
+    prefix, _, rest = text.partition(":")
+    if prefix in _NETWORK_PREFIXES or re.fullmatch(r"[\w.-]+:\d+", text):
+        host, _, port = (rest if prefix in _NETWORK_PREFIXES else text).rpartition(":")
+        if not host or not port.isdigit() or int(port) > 65535:
+            raise ValueError(f"{text!r} is not a network connection: expected {prefix}:HOST:PORT with a port 0-65535, "
+                             "e.g. udpin:0.0.0.0:14550")
+        if re.fullmatch(r"[\d.]+", host):
+            try:
+                ipaddress.IPv4Address(host)
+            except ValueError:
+                raise ValueError(f"{text!r}: {host} is not an IPv4 address") from None
+        return text
+    if text.startswith(("mcast:", "uds:", "unix:", "ws:", "wss:", "wsserver:", "/dev/")) or re.fullmatch(r"COM\d+", text, re.I):
+        return text
+    if os.path.exists(text):  # a serial device elsewhere, or a .tlog to read
+        return text
+    raise ValueError(f"{text!r} is not a MAVLink connection: give udpin:HOST:PORT (listen), udpout:HOST:PORT, tcp:HOST:PORT, "
+                     "tcpin:HOST:PORT, or a serial device such as /dev/ttyUSB0 or COM3")
 
 
 def _is_text_line(data: bytes) -> bool:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import ipaddress
 import logging
 import math
 import os
@@ -46,6 +45,7 @@ from fuser import batch
 from fuser.config import FuserConfig, load_config
 from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError, require_package
 from fuser.outputs import add_options as add_output_options
+from fuser.outputs import mavlink_connection
 
 __all__ = ["main"]
 
@@ -85,29 +85,6 @@ def _version() -> str:
         return version("bingham-fuser")
     except PackageNotFoundError:  # run from a source tree that was never installed
         return "unknown (not installed)"
-
-
-def _mavlink_connection(text: str) -> str:
-    """argparse type of ``--mavlink``: a connection string pymavlink opens, checked for its form only."""
-    prefix, _, rest = text.partition(":")
-    if prefix in ("tcp", "tcpin", "udpin", "udpout", "udpbcast", "udp") or re.fullmatch(r"[\w.-]+:\d+", text):
-        host, _, port = (rest if prefix in ("tcp", "tcpin", "udpin", "udpout", "udpbcast", "udp") else text).rpartition(":")
-        if not host or not port.isdigit() or int(port) > 65535:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a network connection: expected {prefix}:HOST:PORT with a port 0-65535, "
-                                             "e.g. udpin:0.0.0.0:14550")
-        if re.fullmatch(r"[\d.]+", host):
-            try:
-                ipaddress.IPv4Address(host)
-            except ValueError:
-                raise argparse.ArgumentTypeError(f"{text!r}: {host} is not an IPv4 address") from None
-        return text
-    if text.startswith(("mcast:", "uds:", "unix:", "ws:", "wss:", "wsserver:", "/dev/")) or re.fullmatch(r"COM\d+", text, re.I):
-        return text
-    if os.path.exists(text):  # a serial device elsewhere, or a .tlog to read
-        return text
-    raise argparse.ArgumentTypeError(
-        f"{text!r} is not a MAVLink connection: give udpin:HOST:PORT (listen), udpout:HOST:PORT, tcp:HOST:PORT, "
-        "tcpin:HOST:PORT, or a serial device such as /dev/ttyUSB0 or COM3")
 
 
 def _can_bus(text: str) -> str:
@@ -246,7 +223,7 @@ def _add_run(sub: Any) -> None:
     _live_loop_options(p)
     _link(p)
     g = p.add_argument_group("inputs")
-    g.add_argument("--mavlink", action="append", default=[], type=_mavlink_connection, metavar="CONN", help="MAVLink connection (repeatable)")
+    g.add_argument("--mavlink", action="append", default=[], type=mavlink_connection, metavar="CONN", help="MAVLink connection (repeatable)")
     g.add_argument("--baud", type=int, metavar="BAUD", help=f"serial baud rate of the serial --mavlink connections (default: {DEFAULT_BAUD})")
     g.add_argument("--can", action="append", default=[], type=_can_bus, metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
     g.add_argument("--bitrate", type=int, help=f"CAN bitrate for interfaces that set one, e.g. slcan (default: {DEFAULT_BITRATE})")
@@ -543,6 +520,7 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
     with ExitStack() as stack:
         config = _beside_ros2_router(config, args)
         pub = _publisher(stack, config, args)
+        extra = _extra_outputs(stack, config, args)  # before the recorder: an output that cannot open leaves no file
         rec = None
         if args.record:
             # paced runs record in a separate process, like live ones; a full-speed run
@@ -551,7 +529,6 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
             timeline = clock.metadata() if clock is not None else {"time": "the simulated flight's clock (--speed 0)"}
             rec = recorder(args.record, metadata={"source": "bingham-fuser sim", "scenario": args.scenario, "seed": str(args.seed), **timeline})
             stack.callback(rec.close)
-        extra = _extra_outputs(stack, config, args)
         pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
         stop = _stop_on_signal()
         _warm_up(config)  # paced, before the clock matters (fuser/warmup.py); at full speed, so the first run says it compiles
@@ -646,12 +623,12 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
                                                   partial(DroneCanSource, interface=interface, channel=channel, **extra))
         config = _beside_ros2_router(config, args)
         pub = _publisher(stack, config, args)
+        extra = _extra_outputs(stack, config, args)  # before the recorder: an output that cannot open leaves no file
         clock = WallClock.start()
         rec = None
         if args.record:
             rec = RecorderProcess(args.record, metadata={"source": "bingham-fuser run", **clock.metadata()})
             stack.callback(rec.close)
-        extra = _extra_outputs(stack, config, args)
         pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
         _warm_up(config)  # after everything has opened: an input or output that cannot is reported at once
         runner = LiveRunner(pipeline, sources, _status_sinks(pub, rec, extra), _health(pub, rec, extra), clock)

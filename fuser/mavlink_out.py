@@ -15,7 +15,8 @@ component id is ``MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY`` (197) by default. ``tim
 is the estimate's time on the vehicle's IMU clock (``sensor_t_ns``: for MAVLink autopilots
 the time since their boot), so the fused attitude lines up with the autopilot's in a ground
 station's plots. Rates are counted on the loop's timeline (the wall clock live), never on
-the time of sending. Never raises into the loop: failures are counted, the first logged once.
+the time of sending. A connection that cannot be opened is an error at once (``FuserError``, before
+the run starts); once open it never raises into the loop: failed sends are counted, the first logged once.
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ import os
 from dataclasses import dataclass
 from typing import Any
 
+from drivers.link import check_connection
 from drivers.samples import ImuSample, Sample, SourceId
 from fuser.codec import Estimate
+from fuser.errors import FuserError
 
 __all__ = ["MavlinkOut", "MavlinkOutSettings"]
 
@@ -55,6 +58,13 @@ class MavlinkOutSettings:
     """Also send ATTITUDE (Euler angles), which every ground station displays."""
 
     def __post_init__(self) -> None:
+        if not isinstance(self.connection, str):
+            raise ValueError(f"mavlink_out.connection: a pymavlink connection string (or empty), got {self.connection!r}")
+        if self.connection:
+            try:
+                check_connection(self.connection)
+            except ValueError as exc:
+                raise ValueError(f"mavlink_out.connection: {exc}") from None
         if not (isinstance(self.rate_hz, (int, float)) and 0 < self.rate_hz <= 1000):
             raise ValueError(f"mavlink_out.rate_hz: must be in (0, 1000], got {self.rate_hz!r}")
         if self.system_id is not None and not (isinstance(self.system_id, int) and 1 <= self.system_id <= 255):
@@ -69,6 +79,7 @@ class MavlinkOut:
     """Send estimates as MAVLink at ``settings.rate_hz`` plus a 1 Hz heartbeat; counts ``sent`` and ``errors``."""
 
     def __init__(self, settings: MavlinkOutSettings) -> None:
+        """Open ``settings.connection``; ``FuserError`` naming it if it cannot be (a port in use, no such device)."""
         self.settings = settings
         self.sent = 0
         self.errors = 0
@@ -89,8 +100,8 @@ class MavlinkOut:
             self._conn = mavutil.mavlink_connection(
                 settings.connection, dialect="common", source_system=settings.system_id or DEFAULT_SYSTEM_ID,
                 source_component=settings.component_id)
-        except Exception as e:  # noqa: BLE001 - a bad address or port: the fuser goes on without this output
-            self._fail(f"cannot open {settings.connection!r}, nothing will be sent: {e}")
+        except (OSError, ValueError, OverflowError) as e:  # sockets, pyserial (SerialException is an OSError)
+            raise FuserError(f"cannot open --mavlink-out {settings.connection}: {getattr(e, 'strerror', None) or e}") from e
 
     @property
     def system_id(self) -> int:

@@ -17,11 +17,21 @@ from dataclasses import dataclass, field
 from typing import Any
 from collections.abc import Callable
 
+from drivers.link import check_connection
 from fuser.config import FuserConfig
 
-__all__ = ["Outputs", "add_options", "open_outputs"]
+__all__ = ["Outputs", "add_options", "mavlink_connection", "open_outputs"]
 
 FOXGLOVE_PORT = 8765
+
+
+def mavlink_connection(text: str) -> str:
+    """argparse type of a MAVLink connection string (``--mavlink-out``, and ``run --mavlink``): its form checked
+    (:func:`drivers.link.check_connection`), so a malformed one is a usage error before anything opens."""
+    try:
+        return check_connection(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_options(parser: argparse.ArgumentParser) -> None:
@@ -31,8 +41,8 @@ def add_options(parser: argparse.ArgumentParser) -> None:
                    "on /bingham_fuser/pose over rmw_zenoh, via the ROS 2 router on tcp/localhost:7447 (settings: [fuser.ros2])")
     g.add_argument("--foxglove", nargs="?", const=FOXGLOVE_PORT, type=int, metavar="PORT",
                    help=f"serve a live Foxglove view on ws://127.0.0.1:PORT (default {FOXGLOVE_PORT})")
-    g.add_argument("--mavlink-out", metavar="CONN", help="send the fused attitude (ATTITUDE_QUATERNION, ATTITUDE, 1 Hz HEARTBEAT) to a "
-                   "ground station, e.g. udpout:127.0.0.1:14550 (settings: [fuser.mavlink_out])")
+    g.add_argument("--mavlink-out", type=mavlink_connection, metavar="CONN", help="send the fused attitude (ATTITUDE_QUATERNION, "
+                   "ATTITUDE, 1 Hz HEARTBEAT) to a ground station, e.g. udpout:127.0.0.1:14550 (settings: [fuser.mavlink_out])")
 
 
 @dataclass
@@ -57,7 +67,8 @@ def _port(endpoint: str) -> str:
 def open_outputs(stack: ExitStack, config: FuserConfig, args: argparse.Namespace) -> Outputs:
     """Open what ``args`` (flags of :func:`add_options`) and ``config`` ask for, each closed by ``stack``.
 
-    Raises ImportError, with a message naming the extra to install, when a package is missing.
+    Raises ImportError, with a message naming the extra to install, when a package is missing, and
+    :class:`~fuser.errors.FuserError` naming the output when one cannot be opened (``--mavlink-out``).
     """
     out = Outputs()
     if args.ros2 or config.ros2.enabled:

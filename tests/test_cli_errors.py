@@ -168,6 +168,15 @@ def test_an_unexpected_failure_is_one_line_too(monkeypatch: pytest.MonkeyPatch, 
 IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "mavlink-bad-port": (["run", "--mavlink", "udpin:0.0.0.0:99999", "--no-zenoh"], 2, ("99999", "0-65535")),
     "can-no-channel": (["run", "--can", "virtual:", "--no-zenoh"], 2, ("INTERFACE:CHANNEL",)),
+    # --mavlink-out is checked like --mavlink, before anything runs (it was opened, failed, logged and the run went on)
+    "mavlink-out-bad-port": (["sim", "--scenario", "hover", "--speed", "0", "--no-zenoh", "-o", "", "--mavlink-out", "udpout:127.0.0.1:99999"],
+                             2, ("argument --mavlink-out", "99999", "0-65535")),
+    "mavlink-out-notaconn": (["run", "--mavlink", "udpin:127.0.0.1:9", "--no-zenoh", "--duration", "1", "--mavlink-out", "notaconn"], 2,
+                             ("argument --mavlink-out", "'notaconn' is not a MAVLink connection")),
+    "mavlink-out-bad-config": (["sim", "--scenario", "hover", "--speed", "0", "--no-zenoh", "-o", "", "--config", "mavout.toml"], 2,
+                               ("bad configuration", "mavlink_out.connection", "'notaconn' is not a MAVLink connection")),
+    "mavlink-out-no-device": (["sim", "--scenario", "hover", "--speed", "0", "--no-zenoh", "-o", "sim.mcap", "--mavlink-out", "/dev/no-such-tty"],
+                              1, ("cannot open --mavlink-out /dev/no-such-tty",)),
     "run-without-inputs": (["run", "--no-zenoh"], 2, ("--mavlink",)),
     "run-record-into-missing-folder": (["run", "--mavlink", "udpin:127.0.0.1:9", "-o", "no/rec.mcap"], 2, ("no/rec.mcap", "does not exist")),
     "replay-into-missing-folder": (["replay", str(LOG), "-o", "no/out.mcap"], 2, ("no/out.mcap", "does not exist")),
@@ -188,7 +197,8 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "config-missing": (["replay", str(LOG), "-o", "out.mcap", "--config", "none.toml"], 2, ("none.toml",)),
     "run-signing-key-missing": (["run", "--mavlink", "udpin:127.0.0.1:9", "--no-zenoh", "--signing-key-file", "no.key"], 2,
                                 ("link.signing_key_file: cannot read no.key", "No such file")),
-    "replay-signing-key-missing": (["replay", str(LOG), "-o", "out.mcap", "--signing-key-file", "no.key"], 2, ("link.signing_key_file: cannot read no.key",)),
+    "replay-signing-key-missing": (["replay", str(LOG), "-o", "out.mcap", "--signing-key-file", "no.key"], 2,
+                                   ("link.signing_key_file: cannot read no.key",)),
     "replay-signing-key-empty": (["replay", str(LOG), "-o", "out.mcap", "--signing-key-file", "empty.key"], 2, ("empty.key", "is empty")),
     "config-syntax": (["replay", str(LOG), "-o", "out.mcap", "--config", "syntax.toml"], 2, ("syntax.toml", "line 2")),
     "config-unknown-key": (["replay", str(LOG), "-o", "out.mcap", "--config", "unknown.toml"], 2,
@@ -226,6 +236,7 @@ def test_options_only_where_they_act(name: str, tmp_path: Path, monkeypatch: pyt
     (tmp_path / "text.ulg").write_text("hello\n")
     (tmp_path / "empty.key").write_bytes(b"")
     (tmp_path / "adir").mkdir()
+    (tmp_path / "mavout.toml").write_text('[fuser.mavlink_out]\nconnection = "notaconn"\n')
     (tmp_path / "afile").write_bytes(b"")
     if name == "import-text-named-ulg":
         pytest.importorskip("pyulog")
@@ -249,6 +260,23 @@ def test_version(capsys: pytest.CaptureFixture) -> None:
         main(["--version"])
     assert exc.value.code == 0
     assert capsys.readouterr().out.strip() == f"bingham-fuser {version('bingham-fuser')}"
+
+
+def test_a_mavlink_out_port_in_use_is_one_line_before_anything_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                     capsys: pytest.CaptureFixture) -> None:
+    """A port another program holds: exit 1 (a link that cannot be opened, as for --mavlink), no recording left."""
+    from fuser.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as busy:
+        busy.bind(("127.0.0.1", 0))
+        conn = f"udpin:127.0.0.1:{busy.getsockname()[1]}"
+        code = main(["run", "--mavlink", f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}", "--no-zenoh", "--duration", "1",
+                     "--mavlink-out", conn, "-o", "rec.mcap"])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 1 and len(err) == 1, err
+    assert err[0].startswith(f"bingham-fuser: cannot open --mavlink-out {conn}: ") and "in use" in err[0], err
+    assert list(tmp_path.iterdir()) == []
 
 
 DURATION_COMMANDS = {"run": ["run", "--mavlink", "udpin:127.0.0.1:9"], "sim": ["sim"], "import": ["import", "x.ulg", "-o", "x.mcap"]}

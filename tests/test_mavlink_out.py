@@ -17,6 +17,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 
 from drivers.samples import ImuSample, SourceId  # noqa: E402
+from fuser.errors import FuserError  # noqa: E402
 from fuser.mavlink_out import MavlinkOut, MavlinkOutSettings  # noqa: E402
 from fuser.record import read_log  # noqa: E402
 
@@ -88,12 +89,25 @@ def test_a_ground_station_receives_the_fused_attitude_from_its_own_component() -
         assert abs((att.yaw - yaw + np.pi) % (2 * np.pi) - np.pi) < 1e-6
 
 
-def test_settings_are_validated_and_a_bad_connection_never_raises() -> None:
+def test_settings_are_validated() -> None:
     for kwargs, key in [({"rate_hz": 0}, "mavlink_out.rate_hz"), ({"system_id": 0}, "mavlink_out.system_id"),
-                        ({"component_id": 1}, "mavlink_out.component_id"), ({"component_id": 300}, "mavlink_out.component_id")]:
+                        ({"component_id": 1}, "mavlink_out.component_id"), ({"component_id": 300}, "mavlink_out.component_id"),
+                        ({"connection": "notaconn"}, "mavlink_out.connection"), ({"connection": "udpout:127.0.0.1:99999"},
+                                                                                "mavlink_out.connection")]:
         with pytest.raises(ValueError, match=key):
             MavlinkOutSettings(**kwargs)
-    out = MavlinkOut(MavlinkOutSettings(connection="/dev/no-such-tty"))
+
+
+def test_a_connection_that_cannot_open_raises_at_once_and_a_failed_send_never_raises() -> None:
+    with pytest.raises(FuserError, match="cannot open --mavlink-out /dev/no-such-tty: "):
+        MavlinkOut(MavlinkOutSettings(connection="/dev/no-such-tty"))
+    out = MavlinkOut(MavlinkOutSettings(connection=f"udpout:127.0.0.1:{free_udp_port()}"))
+
+    def unplugged(buf: bytes) -> None:
+        raise OSError(5, "Input/output error")
+
+    out._conn.write = unplugged  # a serial adapter pulled out under it
     est = read_log(LOGS / "sim_hover.mcap").estimates()[0]
     out.publish_estimate(est)
+    out.close()
     assert out.errors >= 1 and out.error is not None and out.sent == 0
