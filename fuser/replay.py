@@ -5,7 +5,8 @@ where they fell live, and two replays of one log write byte-identical
 files. The output MCAP holds the inputs again (so it can itself be
 replayed), the estimates, and the log's truth if it had any. Inputs and
 truth from an MCAP log are copied as they are stored (JSON bytes), not
-decoded and encoded again.
+decoded and encoded again. Every record goes into the output in log-time order,
+the copied truth between the estimates and inputs of its time.
 
 A damaged MCAP replays every chunk that can be read (``ReplaySummary.skipped``
 says what could not). A file that is not a log raises
@@ -29,7 +30,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Iterator, TextIO
 
 from drivers.samples import Sample
-from fuser.codec import decode_sample, loads
+from fuser.codec import Estimate, decode_sample, loads
 from fuser.config import FuserConfig
 from fuser.errors import FuserError, NotALogError
 from fuser.importers import import_log, is_importable
@@ -74,11 +75,43 @@ class ReplaySummary:
         return self.samples / self.seconds if self.seconds > 0 else float("inf")
 
 
-def _copied_inputs(messages: Iterable[RawMessage], pipeline: Pipeline, recorder: McapRecorder) -> Iterator[tuple[Sample, int]]:
-    """An MCAP log's inputs, each written unchanged to ``recorder`` where an input sink of the pipeline would write it."""
+class _CopiedInOrder:
+    """Records copied from the log (its ``/truth/pose``), written into the output in log-time order with the rest.
+
+    ``messages`` are in log-time order (:meth:`LogContents.of`); :meth:`until` writes every one not written yet
+    whose log time is at or before ``t_ns``. Called before each record the replay writes, with that record's log
+    time, it puts each copied record where it belongs in time, so the whole file is in log-time order (as the MCAP
+    specification recommends, and as Foxglove and readers that stream it expect) without holding anything back:
+    the messages are the log's, already in memory.
+    """
+
+    def __init__(self, recorder: McapRecorder, messages: list[RawMessage]) -> None:
+        self._recorder = recorder
+        self._messages = messages
+        self._next = 0
+
+    def until(self, t_ns: int) -> None:
+        messages, i = self._messages, self._next
+        while i < len(messages) and messages[i].log_time <= t_ns:
+            self._recorder.write_message(*messages[i])
+            i += 1
+        self._next = i
+
+    def rest(self) -> None:
+        """Write what is left (the records after the last estimate)."""
+        for m in self._messages[self._next:]:
+            self._recorder.write_message(*m)
+        self._next = len(self._messages)
+
+
+def _copied_inputs(messages: Iterable[RawMessage], pipeline: Pipeline, recorder: McapRecorder, copied: _CopiedInOrder,
+                   ) -> Iterator[tuple[Sample, int]]:
+    """An MCAP log's inputs, each written unchanged to ``recorder`` where an input sink of the pipeline would write it
+    (after the ticks due before it and the copied records up to its time)."""
     for m in messages:
         sample, receive_ns = decode_sample(m.topic, loads(m.data))
         pipeline.advance(receive_ns)  # as in Pipeline.feed: the ticks due before the sample are recorded before it
+        copied.until(receive_ns)
         recorder.write_message(m.topic, receive_ns, sample.t_ns, m.data)
         yield sample, receive_ns
 
@@ -167,7 +200,13 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
     provenance = {} if contents is None else contents.metadata.get("bingham_fuser", {})  # reference, source, attribution
     try:
         with McapRecorder(partial, metadata={**provenance, "source_log": source_name}) as recorder:
-            pipeline = Pipeline(config, [], [recorder.write_estimate], MAX_CATCH_UP_TICKS)
+            copied = _CopiedInOrder(recorder, [] if contents is None else contents.of(["/truth/pose"]))
+
+            def write_estimate(est: Estimate) -> None:
+                copied.until(est.t_ns)
+                recorder.write_estimate(est)
+
+            pipeline = Pipeline(config, [], [write_estimate], MAX_CATCH_UP_TICKS)
             tlog = TlogInputs(log, config.link) if messages is None else None
             if tlog is not None:
                 pipeline.inputs.append(recorder.write_sample)
@@ -175,14 +214,12 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
                 inputs: Iterable[tuple[Sample, int]] = progress_bar(tlog, None, "replay", " samples", progress)
             else:
                 feed = pipeline.feed
-                inputs = _copied_inputs(progress_bar(messages, len(messages), "replay", " samples", progress), pipeline, recorder)
+                inputs = _copied_inputs(progress_bar(messages, len(messages), "replay", " samples", progress), pipeline, recorder, copied)
             for sample, receive_ns in inputs:
                 feed(sample, receive_ns)
                 samples += 1
             pipeline.finish()
-            if contents is not None:
-                for truth in contents.of(["/truth/pose"]):
-                    recorder.write_message(*truth)
+            copied.rest()
         if samples == 0:
             refused = "" if tlog is None else "; not used: " + (", ".join(f"{k}={v:,}" for k, v in tlog.report().refused.items()) or "nothing")
             raise ReplayError(f"nothing to replay in {log}: no IMU, magnetometer, attitude or GNSS message could be decoded{refused}")

@@ -21,6 +21,8 @@ from fuser.record import read_log
 from fuser.replay import replay
 from fuser.report import errors_of_log
 
+from log_order import order_violations
+
 LOGS = Path(__file__).resolve().parent.parent / "logs"
 SIM_LOGS = sorted(LOGS.glob("sim_*.mcap"))
 
@@ -73,6 +75,15 @@ def test_replay_twice_is_byte_identical(log, tmp_path):
     replay(log, tmp_path / "a.mcap", config, progress=None)
     replay(log, tmp_path / "b.mcap", config, progress=None)
     assert (tmp_path / "a.mcap").read_bytes() == (tmp_path / "b.mcap").read_bytes()
+
+
+@pytest.mark.parametrize("log", SIM_LOGS + sorted(LOGS.glob("broad_*.mcap")) + sorted(LOGS.glob("px4_*.mcap")), ids=lambda p: p.stem)
+def test_replay_writes_every_record_in_log_time_order(log, tmp_path):
+    """The log's /truth/pose goes in among the estimates and inputs of its time, not after them all (it did: 1,876
+    records out of order on the PX4 cut, 1,200 on the hover flight); no channel goes back either."""
+    replay(log, tmp_path / "out.mcap", config_for(log), progress=None)
+    assert order_violations(tmp_path / "out.mcap") == {}
+    assert len(read_log(tmp_path / "out.mcap").truth()) == len(read_log(log).truth()) > 100
 
 
 @pytest.mark.parametrize("log", SIM_LOGS, ids=lambda p: p.stem)
