@@ -10,6 +10,11 @@ Planner or MAVProxy tell it from the autopilot (MAVLink common.xml):
 * ``HEARTBEAT`` (#0) once a second: ``MAV_TYPE_ONBOARD_CONTROLLER``,
   ``MAV_AUTOPILOT_INVALID`` (not an autopilot), ``MAV_STATE_ACTIVE``.
 
+Only a fresh attitude is sent: once no IMU sample has arrived for ``STALE_AFTER_NS`` (1 s), the
+attitudes stop (counted as ``withheld``) until the IMU is back; the heartbeat goes on, the fuser
+being alive. The loop keeps publishing estimates carried by the last rate after its input stops,
+and a ground station shows whatever attitude it is sent as current.
+
 The system id is the vehicle's (the first MAVLink input sample's), unless set; the
 component id is ``MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY`` (197) by default. ``time_boot_ms``
 is the estimate's time on the vehicle's IMU clock (``sensor_t_ns``: for MAVLink autopilots
@@ -37,6 +42,10 @@ __all__ = ["MavlinkOut", "MavlinkOutSettings"]
 log = logging.getLogger(__name__)
 
 HEARTBEAT_PERIOD_NS = 1_000_000_000
+STALE_AFTER_NS = 1_000_000_000
+"""No attitude is sent once the last IMU sample is older than this (on the loop's timeline): after its input stops the
+loop goes on publishing, the last rate held, which a ground station would show as a fresh attitude. 1 s: ten
+periods of a 10 Hz IMU, three of ArduPilot's default 3 Hz telemetry stream, far beyond a 50-400 Hz IMU's jitter."""
 MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY = 197
 DEFAULT_SYSTEM_ID = 1
 """Used until the first MAVLink input sample tells the vehicle's system id."""
@@ -90,6 +99,9 @@ class MavlinkOut:
         self._vehicle: SourceId | None = None
         self._gyro_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self._gyro_source: SourceId | None = None
+        self._last_imu_ns: int | None = None
+        self.withheld = 0
+        """Attitudes due but not sent: no IMU sample for ``STALE_AFTER_NS``."""
         self._t0_ns: int | None = None
         self._conn: Any = None
         os.environ.setdefault("MAVLINK20", "1")  # mavutil speaks MAVLink 1 unless told before its first import
@@ -113,13 +125,15 @@ class MavlinkOut:
             self.error = message
             log.error("mavlink-out: %s", message)
 
-    def write_sample(self, sample: Sample, receive_ns: int) -> None:  # noqa: ARG002 - an InputSink
-        """Learn the vehicle's system id from its first MAVLink sample; keep the latest gyro of the first IMU."""
+    def write_sample(self, sample: Sample, receive_ns: int) -> None:
+        """Learn the vehicle's system id from its first MAVLink sample; keep the latest gyro of the first IMU and
+        when the last IMU sample arrived (an InputSink)."""
         if self._vehicle is None and sample.source.transport == "mavlink":
             self._vehicle = sample.source
             if self.settings.system_id is None and self._conn is not None:
                 self._conn.mav.srcSystem = sample.source.system
         if isinstance(sample, ImuSample):
+            self._last_imu_ns = receive_ns if self._last_imu_ns is None else max(self._last_imu_ns, receive_ns)
             if self._gyro_source is None:
                 self._gyro_source = sample.source
             if sample.source == self._gyro_source:
@@ -142,6 +156,9 @@ class MavlinkOut:
                 self.sent += 1
             if t >= self._next_attitude_ns:
                 self._next_attitude_ns = _next(self._next_attitude_ns, self._period_ns, t)
+                if self._stale(t):
+                    self.withheld += 1
+                    return
                 boot_ms = (est.t_ns - self._t0_ns if est.sensor_t_ns is None else est.sensor_t_ns) // 1_000_000 % 2**32
                 p, q, r = self._gyro_rad_s
                 mav.attitude_quaternion_send(boot_ms, *est.q_wxyz, p, q, r, (0.0, 0.0, 0.0, 0.0))
@@ -152,6 +169,10 @@ class MavlinkOut:
                     self.sent += 1
         except Exception as e:  # noqa: BLE001 - socket or serial failure: count it, keep the loop going
             self._fail(f"send failed: {e}")
+
+    def _stale(self, t_ns: int) -> bool:
+        """Whether an estimate at ``t_ns`` is carried past its input: no IMU sample for over ``STALE_AFTER_NS``."""
+        return self._last_imu_ns is None or t_ns - self._last_imu_ns > STALE_AFTER_NS
 
     def close(self) -> None:
         if self._conn is not None:

@@ -101,5 +101,5 @@ def open_outputs(stack: ExitStack, config: FuserConfig, args: argparse.Namespace
         stack.callback(mav.close)
         out.estimates.append(mav.publish_estimate)
         out.inputs.append(mav.write_sample)
-        out.health["mavlink_out"] = lambda: {"sent": mav.sent, "errors": mav.errors}
+        out.health["mavlink_out"] = lambda: {"sent": mav.sent, "errors": mav.errors, "withheld": mav.withheld}
     return out

@@ -18,7 +18,7 @@ from pymavlink import mavutil  # noqa: E402
 
 from drivers.samples import ImuSample, SourceId  # noqa: E402
 from fuser.errors import FuserError  # noqa: E402
-from fuser.mavlink_out import MavlinkOut, MavlinkOutSettings  # noqa: E402
+from fuser.mavlink_out import STALE_AFTER_NS, MavlinkOut, MavlinkOutSettings  # noqa: E402
 from fuser.record import read_log  # noqa: E402
 
 LOGS = Path(__file__).resolve().parent.parent / "logs"
@@ -31,15 +31,15 @@ def free_udp_port() -> int:
         return s.getsockname()[1]
 
 
-def _feed(seconds: float) -> list[tuple[str, object]]:
+def _feed(seconds: float) -> list[tuple[str, int, object]]:
     """A real fuser run (logs/sim_hover.mcap, 100 Hz estimates, from 50 ms of IMU before the first), its IMU
-    re-addressed to system 42."""
+    re-addressed to system 42: (kind, time on the loop's timeline (an IMU sample's receive time), sample or estimate)."""
     contents = read_log(LOGS / "sim_hover.mcap")
     events = [(r, 0, dataclasses.replace(s, source=VEHICLE)) for s, r in contents.inputs() if isinstance(s, ImuSample)]
     events += [(e.t_ns, 1, e) for e in contents.estimates()]
     events.sort(key=lambda x: (x[0], x[1]))
     t0 = next(t for t, kind, _ in events if kind == 1)
-    return [("est" if kind else "imu", obj) for t, kind, obj in events if t0 - 50_000_000 <= t < t0 + seconds * 1e9]
+    return [("est" if kind else "imu", t, obj) for t, kind, obj in events if t0 - 50_000_000 <= t < t0 + seconds * 1e9]
 
 
 def test_a_ground_station_receives_the_fused_attitude_from_its_own_component() -> None:
@@ -48,9 +48,9 @@ def test_a_ground_station_receives_the_fused_attitude_from_its_own_component() -
     out = MavlinkOut(MavlinkOutSettings(connection=f"udpout:127.0.0.1:{port}", rate_hz=10.0))
     try:
         sent, gyro = [], (0.0, 0.0, 0.0)
-        for kind, obj in _feed(3.0):
+        for kind, t, obj in _feed(3.0):
             if kind == "imu":
-                out.write_sample(obj, 0)
+                out.write_sample(obj, t)
                 gyro = obj.gyro_rad_s
             else:
                 before = out.sent
@@ -111,3 +111,35 @@ def test_a_connection_that_cannot_open_raises_at_once_and_a_failed_send_never_ra
     out.publish_estimate(est)
     out.close()
     assert out.errors >= 1 and out.error is not None and out.sent == 0
+
+
+def test_the_attitude_stops_once_the_imu_has_been_silent_for_a_second() -> None:
+    """The loop goes on publishing after its input stops (the last rate held): a ground station must not be shown
+    that as a fresh attitude. ATTITUDE_QUATERNION and ATTITUDE stop STALE_AFTER_NS after the last IMU sample (the
+    heartbeat goes on: the component is alive), and start again with the IMU."""
+    out = MavlinkOut(MavlinkOutSettings(connection=f"udpout:127.0.0.1:{free_udp_port()}", rate_hz=10.0))
+    mav = out._conn.mav
+    attitudes: list[int] = []
+    heartbeats: list[int] = []
+    now = {"t": 0}
+    mav.attitude_quaternion_send = lambda *a, **k: attitudes.append(now["t"])
+    mav.heartbeat_send = lambda *a, **k: heartbeats.append(now["t"])
+    events = _feed(8.0)
+    t0 = events[0][1]
+    silent = (t0 + 2_000_000_000, t0 + 6_000_000_000)  # the IMU stops for 4 s, the estimates go on
+    last_imu = max(t for kind, t, _ in events if kind == "imu" and t < silent[0])
+    try:
+        for kind, t, obj in events:
+            now["t"] = t
+            if kind == "imu" and not silent[0] <= t < silent[1]:
+                out.write_sample(obj, t)
+            elif kind == "est":
+                out.publish_estimate(obj)
+    finally:
+        out.close()
+    during = [t for t in attitudes if silent[0] <= t < silent[1]]
+    assert during and max(during) <= last_imu + STALE_AFTER_NS, (during[-1] - last_imu) / 1e9  # 1 s more, then none
+    assert len(during) == pytest.approx(10, abs=1)
+    assert any(t >= silent[1] for t in attitudes)  # back with the IMU
+    assert sum(silent[0] <= t < silent[1] for t in heartbeats) == 4
+    assert out.withheld == pytest.approx(30, abs=1) and out.errors == 0
