@@ -14,7 +14,8 @@ for BROAD it is the optical motion-capture truth; for PX4 it is EKF2's
 MCAP metadata says so). Sender times: sample ``i`` of BROAD is stamped
 ``i / fs`` (fs = 285.714 Hz, exactly 3500 us); PX4 samples keep their ULog
 ``timestamp`` (us since boot), DataFlash records their ``TimeUS``/``TimeMS``.
-Receive time = sender time + 1 ms (a fixed link latency, as in the simulator).
+Receive time = sender time + 1 ms (a fixed link latency, as in the simulator). Inputs and reference are
+written in one pass, in log-time order (:func:`write_mcap`).
 
 Frames and units (every conversion is a product with a fixed rotation; no
 component is ever swapped by hand):
@@ -89,6 +90,7 @@ Reference field
 from __future__ import annotations
 
 import contextlib
+import heapq
 import io
 import math
 import os
@@ -97,7 +99,7 @@ import struct
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence, TextIO
+from typing import Any, Iterable, Iterator, Sequence, TextIO
 
 import numpy as np
 
@@ -106,7 +108,7 @@ from core import quaternion as quat
 from drivers.mavlink_decode import MavlinkDecoder
 from drivers.mavlink_encode import MavlinkEncoder, UnencodableSample
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, SourceId
-from drivers.timebase import MAX_TIME_NS, NS_PER_US
+from drivers.timebase import MAX_TIME_NS, NS_PER_MS, NS_PER_US
 from drivers.validation import ACCEL_MAX_M_S2, MAG_MAX_GAUSS
 from fuser.config import MagSettings
 
@@ -511,6 +513,48 @@ def _sample(data: SensorData, kind: int, stream: int, i: int, t_ns: int) -> obje
     return data.gnss[i]
 
 
+_INPUT, _TRUTH = 0, 1
+STAMP_RESOLUTION_NS = NS_PER_MS
+"""The coarsest time a message the import sends carries: ATTITUDE(_QUATERNION)'s ``time_boot_ms`` (HIGHRES_IMU and
+GPS_INPUT carry microseconds). A decoded sample's time is its event's cut down to it, so at most this much earlier."""
+
+
+def _decoded(data: SensorData, events: Iterable[tuple[int, int, int, int]], encoder: MavlinkEncoder, decoder: MavlinkDecoder,
+             skipped: Counter) -> Iterator[tuple[int, int, int, object]]:
+    """Every event encoded as MAVLink and decoded back, as ``(receive time, _INPUT, n, sample)`` in receive-time order.
+
+    The receive time is the decoded sample's time plus the link latency, and the decoded time is the sender's
+    cut to what its message carries (an attitude's milliseconds): up to :data:`STAMP_RESOLUTION_NS` before
+    messages sent ahead of it. So each is held until no later event can be received before it, never longer
+    than that: a millisecond of messages, not the log. ``skipped`` counts the events that cannot be encoded.
+    """
+    held: list[tuple[int, int, int, object]] = []
+    n = 0
+    for t_ns, kind, stream, i in events:
+        while held and held[0][0] <= t_ns + LINK_LATENCY_NS - STAMP_RESOLUTION_NS:  # no sample of this event or a later one goes before it
+            yield heapq.heappop(held)
+        message = _message(data, kind)
+        try:
+            frame = encoder.encode(_sample(data, kind, stream, i, t_ns), message)  # type: ignore[arg-type]
+        except UnencodableSample:  # a damaged record's time or value: counted, the rest goes on
+            skipped[f"out_of_range_{message}"] += 1
+            continue
+        for sample in decoder.feed(frame):
+            heapq.heappush(held, (sample.t_ns + LINK_LATENCY_NS, _INPUT, n, sample))
+            n += 1
+    while held:
+        yield heapq.heappop(held)
+
+
+def _truth(data: SensorData) -> Iterator[tuple[int, int, int, tuple[float, ...]]]:
+    """The reference attitudes as ``(time, _TRUTH, index, q)`` in time order (a damaged log's out of order are put in
+    place), but where unknown (NaN rows) or damaged."""
+    for i in np.argsort(data.ref_t_ns, kind="stable").tolist():
+        q = data.ref_q[i]
+        if _is_rotation(q):
+            yield int(data.ref_t_ns[i]), _TRUTH, i, tuple(float(v) for v in quat.normalize(q))
+
+
 def _listed(counts: dict[str, int]) -> str:
     return ", ".join(f"{k}={v}" for k, v in sorted(counts.items()))
 
@@ -551,19 +595,13 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     truth = 0
     with McapRecorder(out, metadata=metadata) as rec:
         events = _events(data)
-        for t_ns, kind, stream, i in progress_bar(events, len(events), "import", " messages", progress):
-            message = _message(data, kind)
-            try:
-                frame = encoder.encode(_sample(data, kind, stream, i, t_ns), message)  # type: ignore[arg-type]
-            except UnencodableSample:  # a damaged record's time or value: counted, the rest goes on
-                skipped[f"out_of_range_{message}"] += 1
-                continue
-            for decoded in decoder.feed(frame):
-                rec.write_sample(decoded, decoded.t_ns + LINK_LATENCY_NS)
-                counts[type(decoded)] += 1
-        for t_ns, q in zip(data.ref_t_ns, data.ref_q):
-            if _is_rotation(q):  # not where unknown (NaN rows) or damaged
-                rec.write_truth(int(t_ns), tuple(float(v) for v in quat.normalize(q)))  # type: ignore[arg-type]
+        decoded = _decoded(data, progress_bar(events, len(events), "import", " messages", progress), encoder, decoder, skipped)
+        for log_ns, what, _, record in heapq.merge(decoded, _truth(data)):  # one stream in log-time order: inputs first on ties
+            if what == _INPUT:
+                rec.write_sample(record, log_ns)  # type: ignore[arg-type]
+                counts[type(record)] += 1
+            else:
+                rec.write_truth(log_ns, record)  # type: ignore[arg-type]
                 truth += 1
         if skipped != skipped_before_encoding:  # records the encoding left out too: the metadata again, complete (the last wins)
             rec.add_metadata("bingham_fuser", metadata | {"skipped": _listed(skipped)})

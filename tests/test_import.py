@@ -23,6 +23,8 @@ from drivers.samples import AttitudeSample, ImuSample
 from fuser.importers import broad_quat_from_ned, broad_quat_to_ned, broad_vectors_to_frd, field_from_rest
 from fuser.record import read_log
 
+from log_order import order_violations
+
 ROOT = Path(__file__).resolve().parents[1]
 LOGS = ROOT / "logs"
 BROAD_CUT = LOGS / "broad_02_slow_rotation_cut.mcap"
@@ -199,6 +201,29 @@ def test_import_command_reproduces_the_cut_from_the_hdf5(tmp_path):
     s = [x for x, _ in read_log(out).inputs()][100]
     np.testing.assert_allclose(s.accel_m_s2, S_TO_FRD @ acc, rtol=1e-6, atol=1e-5)
     np.testing.assert_allclose(s.mag_gauss, S_TO_FRD @ mag * 0.01, rtol=1e-6, atol=1e-7)
+
+
+PX4_LOG = SHARED / "px4" / "sample.ulg"
+
+
+@pytest.mark.skipif(not PX4_LOG.exists(), reason="../shared/data/px4 not available")
+def test_import_writes_every_record_in_log_time_order(tmp_path):
+    """Inputs and reference interleaved in time, not in separate passes (19,379 records out of order on sample.ulg:
+    every /truth/pose and its /tf after the inputs, and each attitude, whose message carries milliseconds, behind
+    the IMU sample sent with it); the records themselves as before."""
+    pytest.importorskip("pyulog")
+    from fuser.importers import import_log
+
+    s = import_log(PX4_LOG, tmp_path / "sample.mcap")
+    assert order_violations(tmp_path / "sample.mcap") == {}
+    contents = read_log(tmp_path / "sample.mcap")
+    assert (s.imu, s.attitude, s.truth) == (17070, 6460, 6460)
+    assert [len(contents.of([t])) for t in ("/input/imu", "/input/attitude", "/truth/pose", "/tf")] == [17070, 6460, 6460, 6460]
+
+
+@pytest.mark.parametrize("cut", [BROAD_CUT, PX4_CUT], ids=lambda p: p.stem)
+def test_committed_cuts_are_in_log_time_order(cut):
+    assert order_violations(cut) == {}
 
 
 def test_import_rejects_unknown_format(tmp_path):

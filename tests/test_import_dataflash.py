@@ -31,6 +31,7 @@ from fuser.record import read_log
 from fuser.replay import replay
 
 from dataflash_writer import DataFlashWriter
+from log_order import order_violations
 
 ROOT = Path(__file__).resolve().parents[1]
 GPS_EPOCH_UNIX_S = 315_964_800
@@ -248,6 +249,11 @@ def test_reference_is_named_as_the_autopilots_estimate(written, imported):
     assert "NOT ground truth" in meta["reference"] and "ArduPilot ATT" in meta["reference"]
     assert not meta["reference"].lower().startswith("truth")
     assert meta["reference"].startswith("DCM" if written.path.stem == "old" else "EKF3")
+
+
+def test_every_record_is_in_log_time_order(imported):
+    """Two IMUs, the attitude (milliseconds in ATTITUDE), GNSS and the reference interleaved in time."""
+    assert order_violations(imported[0]) == {}
 
 
 def test_imu_instances_come_through_with_the_logs_own_time(written, imported):
