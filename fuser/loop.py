@@ -204,7 +204,7 @@ class FusionLoop:
         self._last_result: TickResult | None = None
         self._last_counters: dict[str, int] = {}
         self._last_stamp_ns = -(2**63)
-        """The last estimate's stamp: with the output predictor the stamps never go back."""
+        """The last estimate's stamp: with the output predictor every stamp is after it (:meth:`_stamp_of_next_tick`)."""
 
     @property
     def latency_ns(self) -> int:
@@ -224,7 +224,16 @@ class FusionLoop:
     @property
     def next_due_ns(self) -> int | None:
         """Clock time at which the next tick will run, or None before the first sample."""
-        return None if self._next_tick is None else self._next_tick + self._next_wait_ns()
+        return None if self._next_tick is None else self._stamp_of_next_tick(self._next_wait_ns())
+
+    def _stamp_of_next_tick(self, wait_ns: int) -> int:
+        """When the next tick is due, and what its estimate is stamped, under ``wait_ns``: the tick plus the wait; with
+        the output predictor never at or before the last estimate's stamp. A sample's estimate can have gone out at a
+        time after the next tick's due time: the wait came down at that sample (:meth:`Timeline.place`), and the tick
+        it made due in the past is then stamped, and runs, 1 ns after that estimate (it was stamped the same instant,
+        ``fuser/IO.md``)."""
+        due = self._next_tick + wait_ns  # type: ignore[operator]
+        return due if self._output is None else max(due, self._last_stamp_ns + 1)
 
     def _next_wait_ns(self) -> int:
         """The wait of the next tick: the timeline's, or half a period less than the last tick's if that is more."""
@@ -254,7 +263,8 @@ class FusionLoop:
         self._pending.append((placed, self._seq, sample))
         self._seq += 1
         self.counters["samples"] += 1
-        if self._predicted_through(sample, placed) and self._last_result is not None:
+        if self._predicted_through(sample, placed) and self._last_result is not None and receive_ns > self._last_stamp_ns:
+            # none where a tick's estimate already has this instant (due just as the sample arrived): stamps only go forward
             return [self._estimate(receive_ns, self._output.at(receive_ns), self._last_result, (), predicted=True)]  # type: ignore[union-attr]
         return []
 
@@ -268,9 +278,9 @@ class FusionLoop:
         return isinstance(sample, ImuSample) and sample.source == self.reference_imu
 
     def advance(self, now_ns: int) -> list[Estimate]:
-        """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
+        """Run every tick whose due time (tick + latency; :meth:`_stamp_of_next_tick`) is at or before ``now_ns``."""
         out: list[Estimate] = []
-        while self._next_tick is not None and self._next_tick + (wait := self._next_wait_ns()) <= now_ns:
+        while self._next_tick is not None and self._stamp_of_next_tick(wait := self._next_wait_ns()) <= now_ns:
             self._wait_ns = wait
             behind = (now_ns - wait - self._next_tick) // self.period_ns
             if self.max_catch_up_ticks is not None and behind > self.max_catch_up_ticks:
@@ -286,7 +296,10 @@ class FusionLoop:
         """Run the ticks that cover every sample still pending (end of a log)."""
         if not self._pending:
             return []
-        return self.advance(max(p[0] for p in self._pending) + self.period_ns + max(self._wait_ns, self.timeline.wait_ns) - 1)
+        out = self.advance(max(p[0] for p in self._pending) + self.period_ns + max(self._wait_ns, self.timeline.wait_ns) - 1)
+        while self._pending:  # a tick held after the last estimate's stamp (:meth:`_stamp_of_next_tick`) runs then
+            out += self.advance(self._stamp_of_next_tick(self._next_wait_ns()))
+        return out
 
     def diagnostics(self) -> dict[str, dict[str, Any]]:
         """The latest diagnostic of each measurement update (with its tick time ``t_ns``), for the status."""
@@ -303,8 +316,8 @@ class FusionLoop:
         self._last_result, self._last_counters = result, {**result.counters, **self.counters}
         output = self._output
         if output is not None:  # extrapolation.every_imu_sample: the tick's state turned through the samples already here
-            # stamped when due, or with the last prediction's stamp if a sample received after that went first
-            stamp, published = max(tick_ns + self._wait_ns, self._last_stamp_ns), result.published
+            # stamped when due, or just after the last prediction's stamp if a sample received after that went first
+            stamp, published = max(tick_ns + self._wait_ns, self._last_stamp_ns + 1), result.published
             self.model.start_output(output)
             output.advance_through([(sample.gyro_rad_s, placed) for placed, _, sample in self._pending if self._is_reference_imu(sample)])
             if output.active:

@@ -233,7 +233,8 @@ def test_replayed_twice_the_predictions_are_byte_identical(broad_cut):
 
 def test_a_late_tick_is_never_stamped_before_the_prediction_it_follows():
     """Live, a runner behind its clock may feed a sample received after a tick's due time before it runs that tick:
-    the tick's estimate then takes that prediction's stamp, so that the stamps never go back."""
+    the tick's estimate then goes out 1 ns after that prediction, so that the stamps only go forward (it took the
+    prediction's own stamp before: two estimates for one instant)."""
     from fuser.loop import FusionLoop
 
     loop = FusionLoop(FuserConfig().replace(latency={"adaptive": False}))
@@ -244,10 +245,27 @@ def test_a_late_tick_is_never_stamped_before_the_prediction_it_follows():
     due = loop.next_due_ns
     sample, _ = _spin_inputs(0.5, 1.01)[-1]
     late = [e.t_ns for e in loop.push(sample, due + 3 * MS)]  # received 3 ms after the next tick was due, fed first
-    ticked = loop.advance(due + 3 * MS)
+    assert loop.advance(due + 3 * MS) == []  # at the prediction's instant, which has its estimate
+    assert loop.next_due_ns == due + 3 * MS + 1
+    ticked = loop.advance(due + 3 * MS + 1)
     assert late == [due + 3 * MS] and len(ticked) == 1 and not ticked[0].predicted
-    assert ticked[0].t_ns == due + 3 * MS  # not its due time, which lies before the prediction's
+    assert ticked[0].t_ns == due + 3 * MS + 1  # not its due time, which lies before the prediction's
     assert stamps == sorted(stamps) and stamps[-1] < late[0]
+
+
+def test_a_tick_due_as_an_imu_sample_arrives_is_the_one_estimate_of_that_instant():
+    """A fixed 2-ms wait puts every tick's due time on the arrival of a 400 Hz sample (received at 2 ms + k 2.5 ms):
+    the tick runs first, and the sample's prediction, for the same instant, is not published as well (it was:
+    two estimates with one stamp, q differing, 342 times on the BROAD cut). The gyro still turns the predictor
+    through it, and every other sample gets its prediction."""
+    inputs = _spin_inputs(0.5, 1.0)
+    out = _run(FuserConfig().replace(latency_ms=2.0, latency={"adaptive": False}), inputs)
+    stamps = [e.t_ns for e, _ in out]
+    assert all(a < b for a, b in zip(stamps, stamps[1:])), "stamps strictly increase"
+    ticks = {e.t_ns for e, _ in out if not e.predicted}
+    assert len(ticks) > 90 and all(t % 10_000_000 == 2_000_000 for t in ticks)  # due on the grid plus the wait
+    after_first = [r for _, r in inputs if r > min(ticks)]
+    assert {e.t_ns for e, _ in out if e.predicted} == set(after_first) - ticks
 
 
 def test_while_an_imu_is_kept_out_nothing_is_predicted_between_ticks():
