@@ -75,6 +75,7 @@ def run_sim(
             received = clock.now_ns()
         else:
             received = t_ns + SIM_LINK_LATENCY_NS
+        pipeline.advance(received)  # as feed does: the ticks due by now are recorded before the truth received with this tick
         if t_ns >= next_truth:
             next_truth += truth_period
             for sink in truth_sinks:

@@ -97,6 +97,17 @@ def test_replay_writes_every_record_in_log_time_order(replayed):
     assert len(read_log(out).truth()) == len(read_log(log).truth()) > 100
 
 
+def test_sim_records_the_truth_after_the_ticks_due_before_it(tmp_path, capsys):
+    """The truth received with an IMU tick (log time: its receive time) went in before the loop's ticks due by that
+    time, then those ticks' estimates 1 ms behind it: 1,595 records out of order in the hover flight (399 on /tf).
+    The committed flights, written by the same command, are in order too."""
+    out = tmp_path / "sim.mcap"
+    assert main(["sim", "--scenario", "hover", "--speed", "0", "--imu-rate", "200", "--no-zenoh", "-o", str(out)]) == 0
+    assert order_violations(out) == {}
+    assert len(read_log(out).truth()) > 1000
+    assert {log.stem: order_violations(log) for log in SIM_LOGS} == {log.stem: {} for log in SIM_LOGS}
+
+
 def test_replayed_estimates_are_stamped_strictly_forward(replayed):
     """fuser/IO.md: the stamps only go forward. Two estimates shared one stamp: a tick due the instant a sample
     arrived, then that sample's prediction (342 times on the BROAD cut), and a tick the wait made due in the past,
