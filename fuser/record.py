@@ -61,6 +61,8 @@ def _obj(title: str, description: str, properties: dict[str, Any], required: boo
     return out
 
 
+# Foxglove's schemas (github.com/foxglove/foxglove-sdk, schemas/jsonschema/PoseInFrame.json, FrameTransforms.json): the same
+# fields, types, bounds and required fields (every object's but the time's); their own descriptions of the vectors left out.
 POSE_IN_FRAME = _obj(
     "foxglove.PoseInFrame",
     "A timestamped pose for an object or reference frame in 3D space",
@@ -69,6 +71,7 @@ POSE_IN_FRAME = _obj(
             "time",
             "Timestamp of pose",
             {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
+            required=False,  # as in Foxglove's schema: its time lists no required fields
         ),
         "frame_id": {"type": "string", "description": "Frame of reference for pose position and orientation"},
         "pose": _obj(
@@ -94,7 +97,7 @@ FRAME_TRANSFORMS = _obj(
                 "foxglove.FrameTransform",
                 "A transform between two reference frames in 3D space",
                 {
-                    "timestamp": _obj("time", "Timestamp of transform", _TIME),
+                    "timestamp": _obj("time", "Timestamp of transform", _TIME, required=False),
                     "parent_frame_id": {"type": "string", "description": "Name of the parent frame"},
                     "child_frame_id": {"type": "string", "description": "Name of the child frame"},
                     "translation": _vec("xyz", "foxglove.Vector3"),

@@ -111,6 +111,39 @@ def test_complete_file_has_schemas_and_validates(tmp_path: Path) -> None:
     assert n == read_log(path).records == summary.statistics.message_count
 
 
+def _required(schema: dict, path: str = "") -> dict[str, list[str] | None]:
+    """Every object of a JSON schema (by its path) and the fields it requires (None: it lists none)."""
+    out: dict[str, list[str] | None] = {}
+    if schema.get("type") == "object":
+        out[path or "."] = schema.get("required")
+        for name, sub in schema.get("properties", {}).items():
+            out |= _required(sub, f"{path}.{name}")
+    if schema.get("type") == "array" and isinstance(schema.get("items"), dict):
+        out |= _required(schema["items"], f"{path}[]")
+    return out
+
+
+# Foxglove's published schemas (github.com/foxglove/foxglove-sdk, schemas/jsonschema/PoseInFrame.json and
+# FrameTransforms.json), the fields we write: every object requires its fields, but the time, which lists none.
+FOXGLOVE_REQUIRED = {
+    "foxglove.PoseInFrame": {".": ["timestamp", "frame_id", "pose"], ".timestamp": None, ".pose": ["position", "orientation"],
+                             ".pose.position": ["x", "y", "z"], ".pose.orientation": ["x", "y", "z", "w"]},
+    "foxglove.FrameTransforms": {".": ["transforms"], ".transforms[]": ["timestamp", "parent_frame_id", "child_frame_id", "translation", "rotation"],
+                                 ".transforms[].timestamp": None, ".transforms[].translation": ["x", "y", "z"],
+                                 ".transforms[].rotation": ["x", "y", "z", "w"]},
+}
+
+
+def test_foxglove_schemas_require_what_foxgloves_own_do() -> None:
+    """Ours added required sec and nsec to the timestamp, which Foxglove's do not have."""
+    for topic in ("/pose", "/truth/pose", "/tf"):
+        schema = CHANNELS[topic]
+        assert _required(schema) == FOXGLOVE_REQUIRED[schema["title"]], topic
+    time = CHANNELS["/pose"]["properties"]["timestamp"]
+    assert (time["title"], time["properties"]) == ("time", {"sec": {"type": "integer", "minimum": 0},
+                                                            "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}})
+
+
 def test_same_calls_give_identical_bytes(tmp_path: Path) -> None:
     calls = make_calls(200)
     a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
