@@ -143,15 +143,21 @@ ESTIMATE = _obj(
 )
 
 _NUM_OR_NULL = {"type": ["number", "null"]}
+DIAGNOSTIC_UPDATES = ("mag_field", "velocity", "gravity", "heading", "attitude")
+"""Every update a ``/diagnostics`` record can list (``fuser.model.diagnostics.UPDATES``, and ``mag_field``)."""
 DIAGNOSTICS = _obj(
     "bingham_fuser.Diagnostics",
     "What each measurement update did in one tick (fuser/model/diagnostics.py)",
     {
         "t_ns": {"type": "integer", "description": "tick time, ns"},
         "updates": {"type": "array", "items": _obj("update", "one update's outcome", {
-            "update": {"type": "string", "description": "gravity, heading or attitude"},
+            "update": {"type": "string", "enum": list(DIAGNOSTIC_UPDATES), "description": (
+                "gravity (accelerometer), heading (magnetometer), attitude (the autopilot's), velocity (a GNSS fix, as the "
+                "world acceleration it gives), mag_field (the reference field replaced, e.g. by the WMM's at the first fix)")},
             "outcome": {"enum": ["fused", "gated", "reanchored"]},
-            "reason": {"type": "string", "description": "why gated: norm, dip, innovation, before_tilt, ...; empty otherwise"},
+            "reason": {"type": "string", "description": (
+                "why gated: norm, dip, innovation, before_tilt; for velocity no_fix, stale, gap, jump, unselected, unconverged; "
+                "for mag_field the field's source (config, wmm, fallback) or out_of_range; empty otherwise")},
             "innovation_deg": {**_NUM_OR_NULL, "description": "angle between measurement and prediction, degrees"},
             "sigma_deg": {**_NUM_OR_NULL, "description": "measurement sigma used, degrees"},
             "test_ratio": {**_NUM_OR_NULL, "description": "(innovation / gate)^2: above 1 outside the gate"},

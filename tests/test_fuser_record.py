@@ -16,7 +16,9 @@ from mcap.writer import CompressionType, Writer
 
 from drivers.samples import AttitudeSample, ImuSample, MagSample, SourceId
 from fuser.codec import Estimate
-from fuser.record import CHANNELS, McapRecorder, NotAnMcapError, RecorderProcess, read_log
+from fuser.record import CHANNELS, DIAGNOSTICS, McapRecorder, NotAnMcapError, RecorderProcess, read_log
+
+LOGS = Path(__file__).resolve().parent.parent / "logs"
 
 MAV = SourceId("mavlink", 1, 1, 0)
 CAN = SourceId("dronecan", 42, 0, 1)
@@ -142,6 +144,22 @@ def test_foxglove_schemas_require_what_foxgloves_own_do() -> None:
     time = CHANNELS["/pose"]["properties"]["timestamp"]
     assert (time["title"], time["properties"]) == ("time", {"sec": {"type": "integer", "minimum": 0},
                                                             "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}})
+
+
+def test_diagnostics_schema_names_every_update_the_model_reports() -> None:
+    """It described ``update`` as gravity, heading or attitude, though velocity and mag_field occur too (in every flight
+    with GNSS); each update's diagnostic of a recorded flight validates against it."""
+    jsonschema = pytest.importorskip("jsonschema")
+    from fuser.model.diagnostics import UPDATES
+
+    update = DIAGNOSTICS["properties"]["updates"]["items"]["properties"]["update"]
+    assert sorted(update["enum"]) == sorted({*UPDATES, "mag_field"})
+    assert all(name in update["description"] for name in update["enum"])
+    seen = set()
+    for _, record in read_log(LOGS / "sim_aggressive.mcap").topic("/diagnostics"):
+        jsonschema.validate(record, DIAGNOSTICS)
+        seen |= {d["update"] for d in record["updates"]}
+    assert seen == {"mag_field", "velocity", "gravity", "heading"}  # the simulator sends no attitude the policy fuses
 
 
 def test_same_calls_give_identical_bytes(tmp_path: Path) -> None:
