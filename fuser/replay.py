@@ -3,7 +3,8 @@
 The clock is the recorded receive time of each sample, so ticks fall exactly
 where they fell live, and two replays of one log write byte-identical
 files. The output MCAP holds the inputs again (so it can itself be
-replayed), the estimates, and the log's truth if it had any. Inputs and
+replayed), the estimates, the status once a second (as ``sim`` records it), and the
+log's truth if it had any. Inputs and
 truth from an MCAP log are copied as they are stored (JSON bytes), not
 decoded and encoded again. Every record goes into the output in log-time order,
 the copied truth between the estimates and inputs of its time.
@@ -104,15 +105,60 @@ class _CopiedInOrder:
         self._next = len(self._messages)
 
 
+class _Status:
+    """The status on ``/status`` once a second of the log's receive time, as ``sim`` records it: the pipeline's
+    (:meth:`Pipeline.status`) and the recorder's health, after the samples received at one instant and before the
+    ticks of the next. A replay of a ``sim --speed 0`` recording writes its status records again, the same."""
+
+    def __init__(self, recorder: McapRecorder, pipeline: Pipeline, copied: _CopiedInOrder) -> None:
+        from fuser.pipeline import STATUS_PERIOD_NS  # noqa: PLC0415 - as Pipeline: the model loads once the log is known to be one
+
+        self._period_ns = STATUS_PERIOD_NS
+        self._recorder = recorder
+        self._pipeline = pipeline
+        self._copied = copied
+        self._next_ns: int | None = None
+        self._last_ns: int | None = None
+
+    def before(self, receive_ns: int) -> None:
+        """A sample received at ``receive_ns`` is next (before the ticks due by then run)."""
+        last = self._last_ns
+        if last is None:
+            self._next_ns = receive_ns + self._period_ns
+        elif receive_ns > last:
+            self._at(last)
+        self._last_ns = receive_ns
+
+    def end(self) -> None:
+        """After the last sample, before the ticks that cover what is still buffered."""
+        if self._last_ns is not None:
+            self._at(self._last_ns)
+
+    def _at(self, t_ns: int) -> None:
+        if t_ns < self._next_ns:  # type: ignore[operator]
+            return
+        self._next_ns += self._period_ns * ((t_ns - self._next_ns) // self._period_ns + 1)  # type: ignore[operator]  # once, after a gap too
+        self._copied.until(t_ns)
+        self._recorder.write_status(t_ns, {**self._pipeline.status(), "recorder": self._recorder.health()})
+
+
 def _copied_inputs(messages: Iterable[RawMessage], pipeline: Pipeline, recorder: McapRecorder, copied: _CopiedInOrder,
-                   ) -> Iterator[tuple[Sample, int]]:
+                   status: _Status) -> Iterator[tuple[Sample, int]]:
     """An MCAP log's inputs, each written unchanged to ``recorder`` where an input sink of the pipeline would write it
-    (after the ticks due before it and the copied records up to its time)."""
+    (after the status due, the ticks due before it and the copied records up to its time)."""
     for m in messages:
         sample, receive_ns = decode_sample(m.topic, loads(m.data))
+        status.before(receive_ns)
         pipeline.advance(receive_ns)  # as in Pipeline.feed: the ticks due before the sample are recorded before it
         copied.until(receive_ns)
         recorder.write_message(m.topic, receive_ns, sample.t_ns, m.data)
+        yield sample, receive_ns
+
+
+def _timed(inputs: Iterable[tuple[Sample, int]], status: _Status) -> Iterator[tuple[Sample, int]]:
+    """``inputs``, each after the status due before it (Pipeline.feed then runs the ticks due and takes it)."""
+    for sample, receive_ns in inputs:
+        status.before(receive_ns)
         yield sample, receive_ns
 
 
@@ -207,17 +253,19 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
                 recorder.write_estimate(est)
 
             pipeline = Pipeline(config, [], [write_estimate], MAX_CATCH_UP_TICKS)
+            status = _Status(recorder, pipeline, copied)
             tlog = TlogInputs(log, config.link) if messages is None else None
             if tlog is not None:
                 pipeline.inputs.append(recorder.write_sample)
                 feed = tlog.feeder(pipeline)
-                inputs: Iterable[tuple[Sample, int]] = progress_bar(tlog, None, "replay", " samples", progress)
+                inputs: Iterable[tuple[Sample, int]] = _timed(progress_bar(tlog, None, "replay", " samples", progress), status)
             else:
                 feed = pipeline.feed
-                inputs = _copied_inputs(progress_bar(messages, len(messages), "replay", " samples", progress), pipeline, recorder, copied)
+                inputs = _copied_inputs(progress_bar(messages, len(messages), "replay", " samples", progress), pipeline, recorder, copied, status)
             for sample, receive_ns in inputs:
                 feed(sample, receive_ns)
                 samples += 1
+            status.end()
             pipeline.finish()
             copied.rest()
         if samples == 0:

@@ -6,7 +6,9 @@ against the simulator's truth (independent of the filter); once that holds,
 those recorded estimates are the golden file a replay must reproduce.
 """
 
+import json
 import struct
+from bisect import bisect_left
 from pathlib import Path
 
 import numpy as np
@@ -95,6 +97,21 @@ def test_replay_writes_every_record_in_log_time_order(replayed):
     log, out = replayed
     assert order_violations(out) == {}
     assert len(read_log(out).truth()) == len(read_log(log).truth()) > 100
+
+
+def test_replay_records_the_status_once_a_second(replayed):
+    """/status was empty in every replay though the README lists it. A replay writes it as sim does, once a second
+    of the log's receive time: of a sim --speed 0 recording, the very records the simulator wrote."""
+    log, out = replayed
+    status = read_log(out).of(["/status"])
+    if log in SIM_LOGS:
+        assert [m[1:] for m in status] == [m[1:] for m in read_log(log).of(["/status"])]
+    received = [r for _, r in read_log(log).inputs()]
+    seconds = range(1, (received[-1] - received[0]) // 10**9 + 1)  # the first sample received at or after each second
+    assert [m.log_time for m in status] == [received[bisect_left(received, received[0] + k * 10**9)] for k in seconds]
+    assert len(status) > 10
+    last = json.loads(status[-1].data)
+    assert set(last) == {"estimates", "loop", "model", "diagnostics", "recorder"} and last["loop"]["ticks"] > 100
 
 
 def test_sim_records_the_truth_after_the_ticks_due_before_it(tmp_path, capsys):
