@@ -105,11 +105,12 @@ class FuserThread(threading.Thread):
         except BaseException as e:  # noqa: BLE001 - reported by the test
             self.error = e
 
-    def finish(self, timeout: float) -> None:
+    def finish(self, timeout: float, code: int = 0) -> None:
+        """Wait for the run to stop by itself with exit status ``code``."""
         self.join(timeout)
         assert not self.is_alive(), "bingham-fuser run did not stop by itself"
         assert self.error is None, repr(self.error)
-        assert self.code == 0
+        assert self.code == code
 
 
 class StatusTap:
