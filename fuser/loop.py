@@ -204,7 +204,11 @@ class FusionLoop:
         self._last_result: TickResult | None = None
         self._last_counters: dict[str, int] = {}
         self._last_stamp_ns = -(2**63)
-        """The last estimate's stamp: with the output predictor every stamp is after it (:meth:`_stamp_of_next_tick`)."""
+        """The last estimate's stamp: with the output predictor every stamp is after it. A tick is due at its own time
+        and never held back (a tick held until after the last prediction starved every tick whose samples arrived
+        at its due instant); one due at or before a prediction's stamp (the wait came down at that sample,
+        :meth:`Timeline.place`) is stamped 1 ns after it, and a prediction at an instant a tick's estimate already
+        has is not published (``fuser/IO.md``)."""
 
     @property
     def latency_ns(self) -> int:
@@ -224,16 +228,7 @@ class FusionLoop:
     @property
     def next_due_ns(self) -> int | None:
         """Clock time at which the next tick will run, or None before the first sample."""
-        return None if self._next_tick is None else self._stamp_of_next_tick(self._next_wait_ns())
-
-    def _stamp_of_next_tick(self, wait_ns: int) -> int:
-        """When the next tick is due, and what its estimate is stamped, under ``wait_ns``: the tick plus the wait; with
-        the output predictor never at or before the last estimate's stamp. A sample's estimate can have gone out at a
-        time after the next tick's due time: the wait came down at that sample (:meth:`Timeline.place`), and the tick
-        it made due in the past is then stamped, and runs, 1 ns after that estimate (it was stamped the same instant,
-        ``fuser/IO.md``)."""
-        due = self._next_tick + wait_ns  # type: ignore[operator]
-        return due if self._output is None else max(due, self._last_stamp_ns + 1)
+        return None if self._next_tick is None else self._next_tick + self._next_wait_ns()
 
     def _next_wait_ns(self) -> int:
         """The wait of the next tick: the timeline's, or half a period less than the last tick's if that is more."""
@@ -278,9 +273,9 @@ class FusionLoop:
         return isinstance(sample, ImuSample) and sample.source == self.reference_imu
 
     def advance(self, now_ns: int) -> list[Estimate]:
-        """Run every tick whose due time (tick + latency; :meth:`_stamp_of_next_tick`) is at or before ``now_ns``."""
+        """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
         out: list[Estimate] = []
-        while self._next_tick is not None and self._stamp_of_next_tick(wait := self._next_wait_ns()) <= now_ns:
+        while self._next_tick is not None and self._next_tick + (wait := self._next_wait_ns()) <= now_ns:
             self._wait_ns = wait
             behind = (now_ns - wait - self._next_tick) // self.period_ns
             if self.max_catch_up_ticks is not None and behind > self.max_catch_up_ticks:
@@ -296,10 +291,7 @@ class FusionLoop:
         """Run the ticks that cover every sample still pending (end of a log)."""
         if not self._pending:
             return []
-        out = self.advance(max(p[0] for p in self._pending) + self.period_ns + max(self._wait_ns, self.timeline.wait_ns) - 1)
-        while self._pending:  # a tick held after the last estimate's stamp (:meth:`_stamp_of_next_tick`) runs then
-            out += self.advance(self._stamp_of_next_tick(self._next_wait_ns()))
-        return out
+        return self.advance(max(p[0] for p in self._pending) + self.period_ns + max(self._wait_ns, self.timeline.wait_ns) - 1)
 
     def diagnostics(self) -> dict[str, dict[str, Any]]:
         """The latest diagnostic of each measurement update (with its tick time ``t_ns``), for the status."""
