@@ -102,8 +102,8 @@ def check_imus(params_imu_check: np.record, check: np.record, imu: np.ndarray) -
         roughness = 0.0  # the first sample of its IMU: none
         if check.seen[slot]:
             bx, by, bz = check.gyro_rad_s[slot, 0], check.gyro_rad_s[slot, 1], check.gyro_rad_s[slot, 2]
-            for c in range(3):
-                check.repeats[slot, c] = check.repeats[slot, c] + 1 if gyro[c] == check.gyro_rad_s[slot, c] else 0
+            for c, before_c in enumerate((bx, by, bz)):
+                check.repeats[slot, c] = check.repeats[slot, c] + 1 if gyro[c] == before_c else 0
             step2 = (gyro[0] - bx) * (gyro[0] - bx) + (gyro[1] - by) * (gyro[1] - by) + (gyro[2] - bz) * (gyro[2] - bz)
             gain = min(1.0, (t - check.t_ns[slot]) * 1e-9 / params.roughness_s)
             before = check.roughness_rad2_s2[slot]
