@@ -63,6 +63,8 @@ FIX2_VELOCITY_VARIANCES = {6: (3, 4, 5), 36: (21, 28, 35)}
 of position then velocity; 36: the full 6x6 matrix), as ArduPilot's AP_GPS_DroneCAN reads it."""
 TRANSFER_TIMEOUT_S = 1.0
 _SERVICE_BIT = 1 << 7
+_NODE_ID = 0x7F
+"""The source node id in a frame's id; 0 is an anonymous frame (dynamic node id allocation)."""
 _START, _END, _TOGGLE, _TID = 0x80, 0x40, 0x20, 0x1F
 
 
@@ -106,6 +108,9 @@ class DroneCanDecoder(Decoder):
         if not data or len(data) != msg.dlc or (len(data) > 8 and not msg.is_fd):
             self._note("bad_dlc", f"id {can_id:#x} dlc {msg.dlc} with {len(data)} bytes")
             return []
+        if not can_id & _NODE_ID:  # anonymous: a node asking for a node id; bits 8-23 are no data type id
+            self.stats["ignored"] += 1
+            return []
         handler = self._handlers.get((can_id >> 8) & 0xFFFF)
         if handler is None:
             self._not_decoded(can_id)
@@ -120,7 +125,7 @@ class DroneCanDecoder(Decoder):
             self._note("bad_payload", f"{dtype.full_name}: {exc!r}")
             return []
         try:
-            sample = convert(value, can_id & 0x7F, msg.timestamp)
+            sample = convert(value, can_id & _NODE_ID, msg.timestamp)
         except Rejected as rejected:
             self._note(rejected.reason, f"{dtype.full_name}: {rejected.detail}")
             return []
@@ -161,9 +166,12 @@ class DroneCanDecoder(Decoder):
         if not tail & _END:
             return None
         del self._partials[can_id]
+        if len(partial.data) < 2:
+            self._note("bad_length", f"id {can_id:#x}: {len(partial.data)} bytes, shorter than the CRC")
+            return None
         payload = bytes(partial.data[2:])
         if binascii.crc_hqx(payload, dtype.base_crc) != partial.data[0] | partial.data[1] << 8:
-            self._note("bad_crc", f"{dtype.full_name} from node {can_id & 0x7F}")
+            self._note("bad_crc", f"{dtype.full_name} from node {can_id & _NODE_ID}")
             return None
         return payload
 
