@@ -47,6 +47,12 @@ LogStructure.h give them; DFReader applies the format characters' scale
   (``drivers.timebase.MAX_TIME_NS``: a damaged one) is counted as
   ``time_out_of_range_<name>``, and a value MAVLink cannot carry as
   ``out_of_range_<message>`` (:func:`fuser.importers.write_mcap`).
+* Boots: ``TimeUS`` is the time since boot, so a file that holds two boots (logs joined, a board that
+  rebooted while its log went on) has a clock that starts again. Imported in time order, the boots would
+  be interleaved into one flight that never was: the import takes the boot with the most IMU records
+  (the first on ties) and counts the others (``other_boots``) and their records (``other_boot_records``).
+  A restart is a step back in time that the IMU records after it confirm (:data:`RESTART_WINDOW`); one
+  damaged time is not one.
 
 The result is a :class:`fuser.importers.SensorData`, written to MCAP by
 :func:`fuser.importers.write_mcap` exactly as a PX4 log is: every sample
@@ -80,6 +86,9 @@ SECONDS_PER_WEEK = 604_800
 _TYPES = frozenset({"IMU", "IMU2", "IMU3", "MAG", "MAG2", "MAG3", "GPS", "GPS2", "GPA", "GPA2", "ATT"})
 _EKF_NAMES = {0: "DCM", 1: "EKF1", 2: "EKF2", 3: "EKF3", 10: "SITL", 11: "external AHRS"}
 _SKIPPED_BYTES = re.compile(r"Skipped (\d+) bad bytes")
+RESTART_WINDOW = 16
+"""IMU records (of all instances, in file order) on either side of a restart: every one after it is earlier than
+every one before it. One damaged time, or instances a little out of order, cannot do that."""
 
 
 def _time_ns(d: dict, name: str) -> int:
@@ -140,7 +149,8 @@ def _python_indexer():
 
 
 def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
-    """The records the import uses, as plain rows, the log's parameters, and what was skipped.
+    """The records the import uses, as plain rows (of one boot: :func:`_one_boot`), the log's parameters, and what
+    was skipped.
 
     Every record is parsed in file order (``recv_msg``): DFReader's by-type index stops at the first
     record of an unknown type, which a corrupt stretch of the log can fake, and would lose the rest.
@@ -148,6 +158,7 @@ def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
     from pymavlink.DFReader import DFReader_binary
 
     rows: dict[str, list] = defaultdict(list)
+    order: dict[str, list[int]] = defaultdict(list)  # each row's place in the file
     skipped: Counter = Counter()
     chatter = io.StringIO()  # DFReader reports corruption with print(): count it instead
     with contextlib.redirect_stderr(chatter), contextlib.redirect_stdout(chatter), _python_indexer():
@@ -162,9 +173,12 @@ def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
                 name = m.get_type()
                 if name in _TYPES:
                     try:
-                        _add_record(rows, skipped, name, m.to_dict())
+                        key = _add_record(rows, skipped, name, m.to_dict())
                     except (KeyError, TypeError, ValueError):  # a layout this importer does not know
                         skipped[f"unreadable_{name}"] += 1
+                        continue
+                    if key is not None:
+                        order[key].append(whole_to)  # where it ends: grows in file order
             params = dict(log.params)
             if log.data_len > whole_to:  # DFReader stops silently inside a record it cannot read whole
                 skipped["incomplete_tail_bytes"] = log.data_len - whole_to
@@ -176,37 +190,71 @@ def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
         skipped["corrupt_bytes"] = corrupt
     if "Failed to parse" in text:
         skipped["bad_record"] = text.count("Failed to parse")
-    return rows, params, skipped
+    return _one_boot(rows, order, skipped), params, skipped
 
 
-def _add_record(rows: dict[str, list], skipped: Counter, name: str, d: dict) -> None:
-    """File one IMU, MAG, GPS, GPA or ATT record under its stream (imu0, mag1, gps, gpa, att).
-    A field missing from the record's layout raises KeyError (counted by the caller)."""
+def _boot_starts(t: np.ndarray) -> list[int]:
+    """Where in ``t`` (the IMU records' times, in file order) the clock starts again: a step back after which the
+    next :data:`RESTART_WINDOW` times are all earlier than each of the :data:`RESTART_WINDOW` before it."""
+    w = RESTART_WINDOW
+    return [int(j) for j in np.flatnonzero(np.diff(t) < 0) + 1
+            if w <= j <= len(t) - w and t[j:j + w].max() < t[j - w:j].min()]
+
+
+def _one_boot(rows: dict[str, list], order: dict[str, list[int]], skipped: Counter) -> dict[str, list]:
+    """The rows of the boot with the most IMU records (the first on ties); ``order`` gives each row's place in the
+    file. The other boots' records are counted in ``skipped`` (``other_boots``, ``other_boot_records``)."""
+    imu_keys = [k for k in rows if k.startswith("imu")]
+    if not imu_keys:
+        return rows
+    places = np.concatenate([order[k] for k in imu_keys])
+    in_file_order = np.argsort(places, kind="stable")
+    times = np.concatenate([[r[0] for r in rows[k]] for k in imu_keys])[in_file_order]
+    starts = places[in_file_order][_boot_starts(times)]  # where each later boot begins in the file
+    if not len(starts):
+        return rows
+    chosen = int(np.argmax(np.bincount(np.searchsorted(starts, places, side="right"), minlength=len(starts) + 1)))
+    kept: dict[str, list] = defaultdict(list)
+    for key, key_rows in rows.items():
+        boot = np.searchsorted(starts, order[key], side="right")
+        kept[key] = [r for r, b in zip(key_rows, boot.tolist()) if b == chosen]
+        skipped["other_boot_records"] += len(key_rows) - len(kept[key])
+    skipped["other_boots"] = len(starts)
+    return kept
+
+
+def _add_record(rows: dict[str, list], skipped: Counter, name: str, d: dict) -> str | None:
+    """File one IMU, MAG, GPS, GPA or ATT record under its stream (imu0, mag1, gps, gpa, att) and return the
+    stream's name, or None if it was skipped (counted). A field missing from the record's layout raises KeyError
+    (counted by the caller)."""
     t = _time_ns(d, name)  # the earliest GPS layouts have no boot time (no T): unreadable, counted
     if not 0 <= t < MAX_TIME_NS:  # a damaged record's time: it would land anywhere in the flight
         skipped[f"time_out_of_range_{name}"] += 1
-        return
+        return None
     if name.startswith("IMU"):
         if not _healthy(d, "GH", "AH", "GyHlt", "AcHlt"):
             skipped["imu_unhealthy"] += 1
-            return
-        rows[f"imu{_instance(d, name, 'IMU')}"].append((t, d["GyrX"], d["GyrY"], d["GyrZ"], d["AccX"], d["AccY"], d["AccZ"]))
+            return None
+        key, row = f"imu{_instance(d, name, 'IMU')}", (t, d["GyrX"], d["GyrY"], d["GyrZ"], d["AccX"], d["AccY"], d["AccZ"])
     elif name.startswith("MAG"):
         if not _healthy(d, "Health"):
             skipped["mag_unhealthy"] += 1
-            return
-        rows[f"mag{_instance(d, name, 'MAG')}"].append((t, d["MagX"], d["MagY"], d["MagZ"]))
+            return None
+        key, row = f"mag{_instance(d, name, 'MAG')}", (t, d["MagX"], d["MagY"], d["MagZ"])
     elif name.startswith("GPS"):
         if _instance(d, name, "GPS") != 0:
             skipped["gps_second_receiver"] += 1
-            return
+            return None
         week, week_ms = (d["GWk"], d["GMS"]) if "GWk" in d else (d["Week"], d["TimeMS"])
-        rows["gps"].append((t, int(d["Status"]), d["Lat"], d["Lng"], d["Alt"], d["Spd"], d["GCrs"], d.get("VZ"), week, week_ms))
+        key, row = "gps", (t, int(d["Status"]), d["Lat"], d["Lng"], d["Alt"], d["Spd"], d["GCrs"], d.get("VZ"), week, week_ms)
     elif name.startswith("GPA"):
-        if _instance(d, name, "GPA") == 0:
-            rows["gpa"].append((t, d["SAcc"]))
+        if _instance(d, name, "GPA") != 0:
+            return None
+        key, row = "gpa", (t, d["SAcc"])
     else:  # ATT
-        rows["att"].append((t, d["Roll"], d["Pitch"], d["Yaw"], d.get("AEKF")))
+        key, row = "att", (t, d["Roll"], d["Pitch"], d["Yaw"], d.get("AEKF"))
+    rows[key].append(row)
+    return key
 
 
 def _gnss(gps: list, gpa: list) -> tuple[list[GnssSample], float | None]:
