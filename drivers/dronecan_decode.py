@@ -11,9 +11,9 @@ Times: RawIMU, Solution and Fix2 carry ``uavcan.Timestamp`` (the node's time
 base, us; Fix2's is zero when the node has no synchronised time).
 MagneticFieldStrength2 carries none (nor does a Fix2 with a zero timestamp),
 so its time is the frame's receive time (``Message.timestamp``) moved onto the
-node's time base by the offset seen on the latest timestamped transfer of the
-*same node* (receive time as is until one is seen): two nodes' clocks need not
-agree. Fix2's ``gnss_timestamp`` is on a GNSS time standard (UTC, GPS, TAI,
+node's time base by the offset of the least delayed timestamped transfer of the
+*same node* (:class:`_TimeBase`; a stream that starts before one is seen stays
+on the receive time): two nodes' clocks need not agree. Fix2's ``gnss_timestamp`` is on a GNSS time standard (UTC, GPS, TAI,
 with leap seconds), not the node's clock, and is not used for the sample time.
 """
 
@@ -62,6 +62,10 @@ FIX2_VELOCITY_VARIANCES = {6: (3, 4, 5), 36: (21, 28, 35)}
 """Where the north, east, down velocity variances sit in Fix2's ``covariance`` (6: the diagonal
 of position then velocity; 36: the full 6x6 matrix), as ArduPilot's AP_GPS_DroneCAN reads it."""
 TRANSFER_TIMEOUT_S = 1.0
+TIME_BASE_DRIFT = 2e-4
+"""How fast a node's time base may fall behind the receive clock (200 ppm; crystals drift tens of ppm)."""
+TIME_BASE_STEP_NS = 1_000_000_000
+"""A node time this much further behind the receive time than its time base says is a restart, not latency."""
 _SERVICE_BIT = 1 << 7
 _NODE_ID = 0x7F
 """The source node id in a frame's id; 0 is an anonymous frame (dynamic node id allocation)."""
@@ -85,6 +89,32 @@ class _Partial:
         self.t_first = t_first
 
 
+class _TimeBase:
+    """A node's time base against the receive clock: ``offset_ns`` = node time - receive time.
+
+    Taken from the node's least delayed timestamped transfer rather than its latest: a fix is stamped with the
+    time it was measured and sent a varying time later (tens of ms), and the latest one alone would move every
+    untimestamped sample placed with it by that much. Between updates the offset stays put; at each update the
+    kept one first drops by ``TIME_BASE_DRIFT`` of the receive time since the last, so a node clock running slow
+    is followed, and a drop of more than ``TIME_BASE_STEP_NS`` (a restart, its uptime from zero) is taken at once.
+    """
+
+    __slots__ = ("offset_ns", "rx_ns")
+
+    def __init__(self) -> None:
+        self.offset_ns: int | None = None
+        self.rx_ns = 0
+
+    def update(self, offset_ns: int, rx_ns: int) -> None:
+        """Take a timestamped transfer's ``node time - receive time`` (received at ``rx_ns``)."""
+        kept = self.offset_ns
+        if kept is not None:
+            kept -= round(max(rx_ns - self.rx_ns, 0) * TIME_BASE_DRIFT)
+            if kept - TIME_BASE_STEP_NS <= offset_ns < kept:
+                offset_ns = kept
+        self.offset_ns, self.rx_ns = offset_ns, rx_ns
+
+
 class DroneCanDecoder(Decoder):
     """Feed CAN frames one by one (``feed``); returns the samples of each completed transfer."""
 
@@ -97,6 +127,10 @@ class DroneCanDecoder(Decoder):
             # a fresh dronecan value object costs more than decoding it.
             self._handlers[dtype.default_dtid] = (dtype, dtype(), handler)
         self._partials: dict[int, _Partial] = {}
+        self._time_bases: dict[int, _TimeBase] = {}
+        """Per node id (at most 127), its time base, once a timestamped transfer of it has been accepted."""
+        self._on_receive_clock: set[Stream] = set()
+        """Streams that started before their node's time base was known (at most ``max_streams``)."""
 
     def feed(self, msg: can.Message) -> list[Sample]:
         """Samples completed by this frame (empty for a frame in the middle of a transfer)."""
@@ -187,20 +221,24 @@ class DroneCanDecoder(Decoder):
         partials[can_id] = partial
 
     def _stamp_transfer(self, node: int, kind: str, instance: int, usec: int, t_rx: float) -> tuple[int, Stream]:
-        """Monotonic time of a transfer stamped ``usec`` on the node's time base (0: none), and its stream."""
+        """Monotonic time of a transfer stamped ``usec`` on the node's time base (0: none), and its stream.
+
+        A stream keeps the clock it started on: one that started before its node's time base was known (a
+        magnetometer heard before its node's first fix) stays on the receive clock."""
         if not 0.0 <= t_rx < MAX_TIME_NS / 1e9:  # NaN fails too
             raise Rejected("time_out_of_range", f"receive time {t_rx!r} s")
         rx_ns = self._receive_ns = round(t_rx * 1e9)
         stream = self._stream(kind, node, 0, instance)
-        sender = stream.sender
-        if usec:
-            sender_ns = usec * NS_PER_US
-            t_ns = self._stamp(stream, sender_ns, BUS_CLOCK)
-            sender.rx_offset_ns = sender_ns - rx_ns
-        elif sender.rx_offset_ns is not None:  # no timestamp in the message (or 0, "unknown")
-            t_ns = self._stamp(stream, rx_ns + sender.rx_offset_ns, BUS_CLOCK)
-        else:
+        base = self._time_bases.get(node)
+        if stream in self._on_receive_clock or (base is None and not usec):
+            self._on_receive_clock.add(stream)
             t_ns = self._stamp(stream, rx_ns, RECEIVE_CLOCK)
+        elif not usec:  # no timestamp in the message (or 0, "unknown")
+            t_ns = self._stamp(stream, rx_ns + base.offset_ns, BUS_CLOCK)  # type: ignore[union-attr]
+        else:
+            t_ns = self._stamp(stream, usec * NS_PER_US, BUS_CLOCK)
+        if usec:
+            self._time_bases.setdefault(node, _TimeBase()).update(usec * NS_PER_US - rx_ns, rx_ns)
         return t_ns, stream
 
     def _raw_imu(self, m: Any, node: int, t_rx: float) -> ImuSample:

@@ -142,8 +142,15 @@ class VehicleBus:
     status_sent: int
 
 
-def vehicle_bus(flight: Flight, gnss_latency_s: float = 0.05, with_solution: bool = True) -> VehicleBus:
-    """The IMU node's RawIMU (and Solution), the GNSS node's magnetometer and fixes, NodeStatus from both."""
+def vehicle_bus(flight: Flight, gnss_latency_s: float = 0.05, gnss_jitter_s: float = 0.0, with_solution: bool = True,
+                seed: int = 0, mag_from_s: float = 0.0) -> VehicleBus:
+    """The IMU node's RawIMU (and Solution), the GNSS node's magnetometer and fixes, NodeStatus from both.
+
+    A fix goes out ``gnss_latency_s`` after the time it is stamped with, plus up to ``gnss_jitter_s`` more (uniform):
+    a receiver's solution takes a varying time to compute and to reach the node's CAN driver. The magnetometer
+    starts ``mag_from_s`` into the flight (a compass still starting up while the receiver already sends fixes)."""
+    t_first = flight.t_ns[0] * 1e-9
+    rng = np.random.default_rng(seed)
     bus = Bus()
     counts = dict(imu=0, mag=0, fix=0, solution=0, status=0)
     next_status = 0.0
@@ -153,7 +160,7 @@ def vehicle_bus(flight: Flight, gnss_latency_s: float = 0.05, with_solution: boo
             if isinstance(s, ImuSample):
                 bus.send(t, IMU_NODE, raw_imu(t + IMU_UPTIME_S, s.gyro_rad_s, s.accel_m_s2), priority=8)
                 counts["imu"] += 1
-                if s.mag_gauss is not None:
+                if s.mag_gauss is not None and t - t_first >= mag_from_s:
                     bus.send(t + 0.0004, GNSS_NODE, mag_field(s.mag_gauss), priority=12)
                     counts["mag"] += 1
             elif isinstance(s, AttitudeSample) and with_solution:
@@ -161,7 +168,7 @@ def vehicle_bus(flight: Flight, gnss_latency_s: float = 0.05, with_solution: boo
                 counts["solution"] += 1
             elif isinstance(s, GnssSample) and s.vel_ned_m_s is not None:
                 fix_t = s.t_ns * 1e-9
-                bus.send(fix_t + gnss_latency_s, GNSS_NODE, fix2(fix_t + GNSS_UPTIME_S, s.vel_ned_m_s, s.lat_deg, s.lon_deg, s.alt_m),
+                bus.send(fix_t + gnss_latency_s + gnss_jitter_s * rng.random(), GNSS_NODE, fix2(fix_t + GNSS_UPTIME_S, s.vel_ned_m_s, s.lat_deg, s.lon_deg, s.alt_m),
                          priority=16)
                 counts["fix"] += 1
         while t >= next_status:
