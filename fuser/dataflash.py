@@ -75,7 +75,8 @@ from drivers.euler import quaternion_from_euler
 from drivers.samples import GnssSample
 from drivers.timebase import MAX_TIME_NS
 
-from .importers import MAVLINK_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest, in_cut, rest_field_source
+from .importers import (MAVLINK_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest, in_cut, mag_on_next_imu,
+                        rest_field_source)
 
 __all__ = ["read_dataflash"]
 
@@ -121,16 +122,6 @@ def _ekf_name(att_active: list[int], params: dict) -> str:
     if "AHRS_EKF_USE" in params:
         return "EKF1" if params["AHRS_EKF_USE"] else "DCM"
     return "AHRS"
-
-
-def _with_mag(imu_t: np.ndarray, mag: np.ndarray) -> tuple[np.ndarray, int]:
-    """(n, 3) gauss: each magnetometer sample (t, x, y, z rows, milligauss) on the next IMU sample at or
-    after it (the latest one when several fall between two), NaN rows elsewhere; and how many found none."""
-    out = np.full((len(imu_t), 3), np.nan)
-    at = np.searchsorted(imu_t, mag[:, 0].astype(np.int64))
-    inside = at < len(imu_t)
-    out[at[inside]] = mag[inside, 1:] * MGAUSS_TO_GAUSS  # later samples overwrite earlier ones
-    return out, int(np.sum(~inside))
 
 
 @contextlib.contextmanager
@@ -298,7 +289,8 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
         t_ns = raw[:, 0].astype(np.int64)
         mag = None
         if f"mag{i}" in data:
-            mag, late = _with_mag(t_ns, rows_inside(data[f"mag{i}"]))
+            mag_rows = rows_inside(data[f"mag{i}"])
+            mag, late = mag_on_next_imu(t_ns, mag_rows[:, 0].astype(np.int64), mag_rows[:, 1:] * MGAUSS_TO_GAUSS)
             if late:
                 skipped["mag_after_last_imu"] += late
         imus.append(ImuStream(i, t_ns, raw[:, 1:4], raw[:, 4:7], mag))

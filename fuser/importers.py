@@ -51,6 +51,11 @@ PX4 ULog (``sensor_combined``, ``vehicle_attitude``)
       reference field says otherwise: the reference field below carries the
       declination EKF2 learned.
 
+    * The magnetometer: ``sensor_combined.magnetometer_ga`` on older firmware; from PX4 1.10 on it is its own
+      topic, ``vehicle_magnetometer`` (instance 0, the one EKF2 uses; ``magnetometer_ga`` gauss, body FRD,
+      calibrated), each reading stamped with ``timestamp_sample`` and carried by the next ``sensor_combined``
+      sample, as ArduPilot's by its next IMU message (:func:`mag_on_next_imu`).
+
     * GNSS, when the log has it (``vehicle_gps_position``, or ``sensor_gps`` on
       newer firmware; position as ``lat``/``lon``/``alt`` in 1e-7 degrees and mm,
       or ``latitude_deg``/``longitude_deg``/``altitude_msl_m`` on newer
@@ -127,6 +132,7 @@ __all__ = [
     "field_from_rest",
     "in_cut",
     "import_log",
+    "mag_on_next_imu",
     "read_broad",
     "read_px4",
     "write_mcap",
@@ -319,6 +325,17 @@ def in_cut(t: np.ndarray, t0: int, t1: int | None) -> np.ndarray:
     return (t >= t0) & (t < t1) if t1 is not None else t >= t0
 
 
+def mag_on_next_imu(imu_t_ns: np.ndarray, mag_t_ns: np.ndarray, mag_gauss: np.ndarray) -> tuple[np.ndarray, int]:
+    """(n, 3) gauss for n IMU samples: each magnetometer reading on the first IMU sample at or after its time (the
+    latest one when several fall between two IMU samples), NaN rows elsewhere, as an autopilot's IMU message carries
+    the latest compass reading; and how many readings came after the last IMU sample (none carries them)."""
+    out = np.full((len(imu_t_ns), 3), np.nan)
+    at = np.searchsorted(imu_t_ns, mag_t_ns)
+    inside = at < len(imu_t_ns)
+    out[at[inside]] = np.asarray(mag_gauss, dtype=float)[inside]  # later readings overwrite earlier ones
+    return out, int(np.sum(~inside))
+
+
 def field_from_gnss(fixes: list[GnssSample], unix_time_s: float | None) -> tuple[float, float, float] | None:
     """The World Magnetic Model field at the first 3-D fix with a position the model takes, on the given date;
     None without one (or for a date outside the model's years: a damaged log's)."""
@@ -333,6 +350,27 @@ def field_from_gnss(fixes: list[GnssSample], unix_time_s: float | None) -> tuple
     return None
 
 
+def _sample_stamp(d: dict) -> str:
+    """The field that stamps a topic's samples: ``timestamp_sample`` (when the sensor measured) where the topic has
+    it and it is set, else ``timestamp`` (when it was published)."""
+    return "timestamp_sample" if "timestamp_sample" in d and np.all(np.asarray(d["timestamp_sample"]) > 0) else "timestamp"
+
+
+def _px4_magnetometer(topics: dict, imu_t_ns: np.ndarray, t0_us: int, t1_us: int | None, skipped: Counter) -> np.ndarray | None:
+    """``vehicle_magnetometer`` (PX4 1.10 on, whose ``sensor_combined`` has no magnetometer) within the cut, each reading
+    on the next IMU sample (:func:`mag_on_next_imu`; those after the last are counted as ``mag_after_last_imu``);
+    None without the topic."""
+    d = topics.get("vehicle_magnetometer")
+    if d is None:
+        return None
+    t_us, valid = _ulog_times_us(d, "vehicle_magnetometer", skipped, _sample_stamp(d))
+    inside = valid & in_cut(t_us, t0_us, t1_us)
+    mag, late = mag_on_next_imu(imu_t_ns, t_us[inside] * 1000, _ulog_vec(d, "magnetometer_ga")[inside])
+    if late:
+        skipped["mag_after_last_imu"] += late
+    return mag
+
+
 def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None, skipped: Counter) -> tuple[list[GnssSample], float | None]:
     """GnssSamples of ``vehicle_gps_position`` (else ``sensor_gps``) within the cut, and the UTC time of
     the first 3-D fix that has one (seconds since 1970), for the magnetic model's date; a fix whose time is not
@@ -341,8 +379,7 @@ def _px4_gnss(topics: dict, t0_us: int, t1_us: int | None, skipped: Counter) -> 
     d = topics.get(name)
     if d is None:
         return [], None
-    stamp = "timestamp_sample" if "timestamp_sample" in d and np.all(np.asarray(d["timestamp_sample"]) > 0) else "timestamp"
-    t_us, valid = _ulog_times_us(d, name, skipped, stamp)
+    t_us, valid = _ulog_times_us(d, name, skipped, _sample_stamp(d))
     if "latitude_deg" in d:  # newer firmware
         lat, lon, alt = (np.asarray(d[k], dtype=float) for k in ("latitude_deg", "longitude_deg", "altitude_msl_m"))
     else:  # 1e-7 degrees and millimetres
@@ -427,8 +464,10 @@ def _ulog_times_us(d: dict, topic: str, skipped: Counter, field: str = "timestam
 
 
 def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = None, field_rest_s: float = 2.0) -> SensorData:
-    """A PX4 ULog's ``sensor_combined``, ``vehicle_attitude`` and GNSS (already FRD/NED, SI, gauss)."""
-    ulog, skipped = _ulog(path, ["sensor_combined", "vehicle_attitude", "estimator_status", "vehicle_gps_position", "sensor_gps"])
+    """A PX4 ULog's ``sensor_combined``, its magnetometer (in ``sensor_combined`` on older firmware, else
+    ``vehicle_magnetometer``), ``vehicle_attitude`` and GNSS (already FRD/NED, SI, gauss)."""
+    ulog, skipped = _ulog(path, ["sensor_combined", "vehicle_attitude", "estimator_status", "vehicle_gps_position", "sensor_gps",
+                                 "vehicle_magnetometer"])
     topics = {d.name: d.data for d in ulog.data_list if d.multi_id == 0}
     missing = [name for name in ("sensor_combined", "vehicle_attitude") if name not in topics]
     if missing:
@@ -443,7 +482,7 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
     keep = valid & in_cut(t_us, t0, t1)
     gyro = _ulog_vec(sc, "gyro_rad")[keep]
     accel = _ulog_vec(sc, "accelerometer_m_s2")[keep]
-    mag = _ulog_vec(sc, "magnetometer_ga")[keep] if "magnetometer_ga[0]" in sc else None
+    mag = _ulog_vec(sc, "magnetometer_ga")[keep] if "magnetometer_ga[0]" in sc else _px4_magnetometer(topics, t_us[keep] * 1000, t0, t1, skipped)
     va_t, va_valid = _ulog_times_us(va, "vehicle_attitude", skipped)
     va_keep = va_valid & in_cut(va_t, t0, t1)
     ref_q = np.column_stack([np.asarray(va[f"q[{i}]"], dtype=float) for i in range(4)])[va_keep]
