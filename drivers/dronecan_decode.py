@@ -78,15 +78,21 @@ def data_type(full_name: str) -> Any:
 
 
 class _Partial:
-    """A multi-frame transfer being reassembled."""
+    """A multi-frame transfer being reassembled; once ``spoilt`` (refused and counted), its remaining frames are
+    dropped without a count, so that one lost frame is one refusal."""
 
-    __slots__ = ("tid", "toggle", "data", "t_first")
+    __slots__ = ("tid", "toggle", "data", "last", "repeats", "t_first", "spoilt")
 
-    def __init__(self, tid: int, data: bytes, t_first: float) -> None:
+    def __init__(self, tid: int, data: bytes, t_first: float, spoilt: bool = False) -> None:
         self.tid = tid
         self.toggle = _TOGGLE
         self.data = bytearray(data)
+        self.last = b""
+        """The latest frame, tail byte included: a frame received twice repeats it (with the previous toggle bit)."""
+        self.repeats = 0
+        """Frames taken for repeats and dropped; counted (``duplicate_frame``) once the CRC shows they were."""
         self.t_first = t_first
+        self.spoilt = spoilt
 
 
 class _TimeBase:
@@ -177,34 +183,67 @@ class DroneCanDecoder(Decoder):
         tail = data[-1]
         body = bytes(data[:-1])
         if tail & _START:
-            if can_id in self._partials:
-                self._note("incomplete_transfer", f"id {can_id:#x} restarted")
-                del self._partials[can_id]
-            if tail & _END:
-                return body
-            if tail & _TOGGLE:
-                self._note("bad_toggle", f"id {can_id:#x} first frame toggled")
-                return None
-            self._start(can_id, _Partial(tail & _TID, body, t_rx))
-            return None
+            return self._first_frame(can_id, data, t_rx)
         partial = self._partials.get(can_id)
         if partial is None or partial.tid != tail & _TID:
-            self._note("orphan_frame", f"id {can_id:#x} frame without a start")
+            return self._spoil(can_id, _Partial(tail & _TID, b"", t_rx), tail, "orphan_frame")
+        if partial.spoilt:
+            if tail & _END:
+                del self._partials[can_id]
             return None
-        if tail & _TOGGLE != partial.toggle or len(partial.data) + len(body) > dtype.get_max_bitlen() // 8 + 2:
-            del self._partials[can_id]
-            self._note("bad_toggle" if tail & _TOGGLE != partial.toggle else "bad_length", f"id {can_id:#x}")
-            return None
+        if tail & _TOGGLE != partial.toggle:
+            if data == partial.last:
+                partial.repeats += 1
+                return None
+            return self._spoil(can_id, partial, tail, "bad_toggle")
+        if len(partial.data) + len(body) > dtype.get_max_bitlen() // 8 + 2:
+            return self._spoil(can_id, partial, tail, "bad_length")
         partial.data += body
+        partial.last = bytes(data)
         partial.toggle ^= _TOGGLE
         if not tail & _END:
             return None
         del self._partials[can_id]
-        if len(partial.data) < 2:
-            self._note("bad_length", f"id {can_id:#x}: {len(partial.data)} bytes, shorter than the CRC")
+        payload = self._checked(can_id, partial.data, dtype)
+        if payload is not None and partial.repeats:
+            self._note("duplicate_frame", f"id {can_id:#x}: {partial.repeats} frame(s) received twice", partial.repeats)
+        return payload
+
+    def _first_frame(self, can_id: int, data: bytes | bytearray, t_rx: float) -> bytes | None:
+        """A start frame: a single-frame transfer's payload, or a multi-frame transfer begun (None)."""
+        tail = data[-1]
+        body = bytes(data[:-1])
+        previous = self._partials.pop(can_id, None)
+        if previous is not None and not previous.spoilt:
+            self._note("incomplete_transfer", f"id {can_id:#x} restarted")
+        if tail & _END:
+            return body
+        partial = _Partial(tail & _TID, body, t_rx)
+        partial.last = bytes(data)
+        if tail & _TOGGLE:
+            return self._spoil(can_id, partial, tail, "bad_toggle")
+        self._start(can_id, partial)
+        return None
+
+    def _spoil(self, can_id: int, partial: _Partial, tail: int, reason: str) -> None:
+        """Refuse a transfer once (``reason``) and drop the rest of its frames uncounted; an unfinished transfer
+        it replaces is ``incomplete_transfer``."""
+        self._note(reason, f"id {can_id:#x}")
+        previous = self._partials.pop(can_id, None)
+        if previous is not None and previous is not partial and not previous.spoilt:
+            self._note("incomplete_transfer", f"id {can_id:#x} superseded")
+        if not tail & _END and len(self._partials) < MAX_PENDING_TRANSFERS:
+            partial.spoilt = True
+            self._partials[can_id] = partial
+        return None
+
+    def _checked(self, can_id: int, data: bytearray, dtype: Any) -> bytes | None:
+        """The payload of a reassembled transfer (CRC first), or None if its CRC is missing or wrong."""
+        if len(data) < 2:
+            self._note("bad_length", f"id {can_id:#x}: {len(data)} bytes, shorter than the CRC")
             return None
-        payload = bytes(partial.data[2:])
-        if binascii.crc_hqx(payload, dtype.base_crc) != partial.data[0] | partial.data[1] << 8:
+        payload = bytes(data[2:])
+        if binascii.crc_hqx(payload, dtype.base_crc) != data[0] | data[1] << 8:
             self._note("bad_crc", f"{dtype.full_name} from node {can_id & _NODE_ID}")
             return None
         return payload
@@ -213,8 +252,8 @@ class DroneCanDecoder(Decoder):
         """Track a new transfer, dropping (and counting) stale or excess unfinished ones."""
         partials = self._partials
         for key in [k for k, p in partials.items() if partial.t_first - p.t_first > TRANSFER_TIMEOUT_S]:
-            del partials[key]
-            self._note("incomplete_transfer", f"id {key:#x} timed out")
+            if not partials.pop(key).spoilt:
+                self._note("incomplete_transfer", f"id {key:#x} timed out")
         if len(partials) >= MAX_PENDING_TRANSFERS:
             self._note("too_many_transfers", f"id {can_id:#x}: {len(partials)} unfinished transfers already")
             return

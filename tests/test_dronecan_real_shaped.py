@@ -126,3 +126,37 @@ def test_varying_fix_latency_neither_refuses_nor_shakes_the_magnetometer(flight:
     spacing_error_s = np.diff(mag_times_s(out)) - np.diff(sent_s)
     settled = spacing_error_s[len(spacing_error_s) // 2 :]  # once a fix with about the smallest latency has come
     assert np.abs(settled).max() < 0.002
+
+
+# ---------------------------------------------------------------- frames lost or repeated on the bus
+
+def seven_frame_imu(k: int) -> list[can.Message]:
+    """The IMU node's RawIMU number ``k`` (transfer id k), 7 frames."""
+    out = frames(raw_imu(1.0 + 0.005 * k, (0.1, 0.0, 0.0), (0.0, 0.0, -9.81)), IMU_NODE, k, 1.0 + 0.005 * k)
+    assert len(out) == 7
+    return out
+
+
+@pytest.mark.parametrize("lost", range(7))
+def test_one_frame_lost_from_a_transfer_is_counted_once(lost: int) -> None:
+    """A lost frame spoils one transfer, which is one refusal: the frames after it used to count too, each as an
+    orphan_frame (the start frame lost: 6 counts; the second: bad_toggle and 4 orphan_frame)."""
+    decoder = DroneCanDecoder()
+    spoilt = seven_frame_imu(1)
+    del spoilt[lost]
+    out = feed(decoder, spoilt + seven_frame_imu(2) + seven_frame_imu(3))
+    assert [s.t_ns for s in out] == [1_010_000_000, 1_015_000_000]
+    refused = {k: v for k, v in decoder.stats.items() if k != "accepted"}
+    assert sum(refused.values()) == 1, refused
+
+
+def test_a_frame_received_twice_spoils_nothing() -> None:
+    """CAN can deliver a frame twice (an error in the last bits of its end-of-frame makes the sender send it
+    again after a receiver took it): DroneCAN's toggle bit tells the copy, as libcanard drops it. The transfer was
+    refused (bad_toggle) and its four last frames counted as orphans."""
+    decoder = DroneCanDecoder()
+    twice = seven_frame_imu(1)
+    twice.insert(3, twice[2])
+    out = feed(decoder, twice + seven_frame_imu(2))
+    assert [s.t_ns for s in out] == [1_005_000_000, 1_010_000_000]
+    assert decoder.stats == {"accepted": 2, "duplicate_frame": 1}
