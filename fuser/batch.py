@@ -77,6 +77,11 @@ class LogResult:
     reference: str | None = None
     not_imported: dict[str, int] = field(default_factory=dict)
     """For a log replayed through ``import`` (DataFlash, ULog, BROAD): what the import left out, by reason."""
+    input_warning: str | None = None
+    """For a .tlog: the warning ``replay LOG`` prints when little of its IMU data reached the loop
+    (:meth:`fuser.inputs.InputReport.warning`), else None."""
+    input_refused: dict[str, int] = field(default_factory=dict)
+    """For a .tlog with ``input_warning``: what was not used, by reason (:attr:`fuser.inputs.InputReport.refused`)."""
 
     @property
     def samples_per_s(self) -> float:
@@ -121,8 +126,10 @@ def run_task(task: LogTask) -> LogResult:
         return _failed(task, _one_line(exc))
     counters = summary.counters
     rejected = sum(v for k, v in counters.items() if any(mark in k for mark in REJECTION_COUNTERS))
+    warning = None if summary.inputs is None else summary.inputs.warning()
     return LogResult(task.log, task.output, True, "", summary.samples, summary.estimates, summary.seconds,
-                     counters.get("samples", 0), rejected, error_deg, reference, dict(summary.imported or {}))
+                     counters.get("samples", 0), rejected, error_deg, reference, dict(summary.imported or {}),
+                     warning, summary.inputs.refused if warning is not None else {})  # type: ignore[union-attr]
 
 
 def output_paths(logs: Sequence[str | Path], out_dir: str | Path) -> list[Path]:
@@ -282,6 +289,11 @@ def _bar(total: int, stream: TextIO | None):
     return tqdm(total=total, unit="log", desc="replay", file=stream, disable=stream is None or not stream.isatty())
 
 
+def _listed(counts: dict[str, int]) -> str:
+    """``reason=count, ...`` in the order given."""
+    return ", ".join(f"{k}={v:,}" for k, v in counts.items())
+
+
 def format_summary(results: Iterable[LogResult], wall_s: float | None = None) -> list[str]:
     """The summary table, one row per log, and a closing line with the totals."""
     results = list(results)
@@ -301,9 +313,11 @@ def format_summary(results: Iterable[LogResult], wall_s: float | None = None) ->
         cells = [c.rjust(w) if i in numeric else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))]
         return "  ".join(cells + [row[-1]]).rstrip()
 
-    notes = [f"{r.log}: not imported: {', '.join(f'{k}={v:,}' for k, v in r.not_imported.items())}"
+    notes = [f"{r.log}: not imported: {_listed(r.not_imported)}"
              + (" (the log was cut short, or ends in garbage)" if "incomplete_tail_bytes" in r.not_imported else "")
              for r in results if r.not_imported]
+    notes += [f"{r.input_warning} (not used: {_listed(r.input_refused)})"
+              for r in results if r.input_warning]
     failed = sum(not r.ok for r in results)
     samples = sum(r.samples for r in results)
     total = f"replay: {len(results)} logs, {len(results) - failed} ok, {failed} failed; {samples:,} samples"
