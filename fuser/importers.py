@@ -437,8 +437,10 @@ def ulog_incomplete_tail_bytes(path: str | Path, appended_offsets: Sequence[int]
 def _ulog(path: str | Path, topics: list[str]) -> tuple[Any, Counter]:
     """pyulog's reading of ``topics`` and what it reported (it reports damage with print(), silenced here):
     ``corrupt_data`` 1 if it found corrupt data (and skipped to the next sync), ``unknown_message_id`` the ids
-    of data it found no subscription for (it says so once per id, not per record); and
-    ``incomplete_tail_bytes`` (:func:`ulog_incomplete_tail_bytes`; not counted where damage hides it)."""
+    of data it found no subscription for (it says so once per id, not per record);
+    ``incomplete_tail_bytes`` (:func:`ulog_incomplete_tail_bytes`; not counted where damage hides it); and the
+    logger's own dropouts (``logger_dropouts``, ``logger_dropout_ms``: data PX4 lost before it was written, where its
+    log buffer overflowed)."""
     from pyulog import ULog
 
     chatter = io.StringIO()
@@ -448,7 +450,9 @@ def _ulog(path: str | Path, topics: list[str]) -> tuple[Any, Counter]:
     appended = ulog._appended_offsets if ulog.has_data_appended else []  # pyulog keeps the offsets private
     skipped = Counter({"corrupt_data": int(bool(ulog.file_corruption or "corruption detected" in text)),
                        "unknown_message_id": len(set(re.findall(r"no subscription found for message id (\d+)", text))),
-                       "incomplete_tail_bytes": ulog_incomplete_tail_bytes(path, appended) or 0})
+                       "incomplete_tail_bytes": ulog_incomplete_tail_bytes(path, appended) or 0,
+                       "logger_dropouts": len(ulog.dropouts),
+                       "logger_dropout_ms": sum(d.duration for d in ulog.dropouts)})
     return ulog, +skipped
 
 

@@ -1,5 +1,5 @@
 """``bingham-fuser import`` of a ULog from current PX4 (1.10 on): the magnetometer is no longer in
-``sensor_combined`` but in its own topic, ``vehicle_magnetometer``.
+``sensor_combined`` but in its own topic, ``vehicle_magnetometer``; and the logger's dropouts.
 
 The import read only ``sensor_combined.magnetometer_ga``: a current log came in without any magnetometer, in
 silence, and its heading rested on the gyro alone. The log here is written by the project's ULog writer with
@@ -9,6 +9,7 @@ simulator; pyulog (the independent parser) reads it in the importer.
 
 from __future__ import annotations
 
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -73,3 +74,16 @@ def test_the_magnetometer_of_current_px4_rides_with_the_next_imu_sample(tmp_path
     assert data.field_source.startswith("mean of the first")  # no GNSS, no EKF2 field state: measured at rest
     assert data.mag_field_ned_gauss is not None
     assert np.linalg.norm(data.mag_field_ned_gauss) == pytest.approx(np.linalg.norm((0.2, 0.01, 0.43)), rel=0.02)
+
+
+def test_the_loggers_dropouts_are_counted(tmp_path: Path) -> None:
+    """PX4's logger writes a dropout message ('O', its duration in ms) where its buffer overflowed and data was lost:
+    the import cannot bring that data back, but it says how much the log lacks."""
+    path = tmp_path / "dropouts.ulg"
+    _write(path)
+    w_data = bytearray(path.read_bytes())
+    for duration_ms in (35, 120):
+        w_data += struct.pack("<HBH", 2, ord("O"), duration_ms)  # a dropout message: uint16 duration in ms
+    path.write_bytes(bytes(w_data))
+    data = read_px4(path)
+    assert data.skipped["logger_dropouts"] == 2 and data.skipped["logger_dropout_ms"] == 155
