@@ -14,7 +14,10 @@ from dronecan.transport import Transfer
 from drivers import DroneCanDecoder
 from drivers.samples import GnssSample, MagSample, Sample
 from drivers.sim import Flight, SimConfig, simulate
-from dronecan_bus import GNSS_NODE, IMU_NODE, VehicleBus, frames, raw_imu, vehicle_bus
+from dronecan_bus import FRAME_S, GNSS_NODE, IMU_NODE, IMU_UPTIME_S, RX_EPOCH_S, VehicleBus, frames, raw_imu, rx_ns, vehicle_bus
+from fuser.config import FuserConfig
+from fuser.evaluate import attitude_errors
+from fuser.pipeline import Pipeline
 
 RAW_IMU_DTID = dronecan.TYPENAMES["uavcan.equipment.ahrs.RawIMU"].default_dtid
 
@@ -160,3 +163,73 @@ def test_a_frame_received_twice_spoils_nothing() -> None:
     out = feed(decoder, twice + seven_frame_imu(2))
     assert [s.t_ns for s in out] == [1_005_000_000, 1_010_000_000]
     assert decoder.stats == {"accepted": 2, "duplicate_frame": 1}
+
+
+# ---------------------------------------------------------------- the estimate from a faulty bus
+
+FLOOD_NODE = 77
+UNKNOWN_DTID = 30_000  # no message type of dronecan's DSDL has it (20000 is ardupilot.indication.SafetyState)
+
+
+def flood(at_s: float, count: int) -> list[can.Message]:
+    """``count`` single-frame transfers of an unknown data type from a babbling node, back to back."""
+    can_id = (0 << 24) | (UNKNOWN_DTID << 8) | FLOOD_NODE  # priority 0: it wins every arbitration
+    return [can.Message(arbitration_id=can_id, data=bytes([k & 0xFF, 0xC0 | (k % 32)]), is_extended_id=True,
+                        timestamp=RX_EPOCH_S + at_s + k * FRAME_S) for k in range(count)]
+
+
+def with_faults(bus: VehicleBus, rng: np.random.Generator) -> tuple[list[can.Message], dict[str, int]]:
+    """The bus's frames with faults put in, and how many of each refusal they should give."""
+    out: list[can.Message] = []
+    expected = {"bad_toggle": 0, "non_finite": 0, "gyro_out_of_range": 0, "unknown_message": 500}
+    raw_imu_id = (8 << 24) | (RAW_IMU_DTID << 8) | IMU_NODE
+    imu_frame = 0
+    for f in bus.frames:
+        imu_frame += f.arbitration_id == raw_imu_id
+        if f.arbitration_id == raw_imu_id and imu_frame % 700 == 300:  # the third frame of every hundredth RawIMU lost
+            expected["bad_toggle"] += 1
+            continue
+        out.append(f)
+        if f.arbitration_id == raw_imu_id and imu_frame % 1400 == 7:  # after every 200th RawIMU, a NaN and a saturated one
+            for k, (gyro, reason) in enumerate((((np.nan, 0.0, 0.0), "non_finite"), ((0.0, 60.0, 0.0), "gyro_out_of_range"))):
+                stamp_s = 10_000.0 + k + float(rng.random())  # nonsense times too: they must not count
+                out += frames(raw_imu(stamp_s, gyro, (0.0, 0.0, -9.81)), IMU_NODE, 31 - k, f.timestamp, priority=8)
+                expected[reason] += 1
+    at = len(out) // 2
+    out[at:at] = flood(out[at].timestamp - RX_EPOCH_S, 500)
+    return out, expected
+
+
+def fused_errors_deg(flight: Flight, decoded: list[tuple[int, Sample]], gnss_latency_s: float) -> tuple[float, float]:
+    """RMS attitude error of the filter's estimates (not the predictor's) against the truth, 10-25 s and 25-30 s."""
+    config = FuserConfig().replace(mag={"field_ned_gauss": flight.mag_field_ned_gauss}, gnss={"latency_ms": gnss_latency_s * 1e3})
+    estimates: list = []
+    pipeline = Pipeline(config, outputs=[estimates.append])
+    for receive_ns, sample in decoded:
+        pipeline.feed(sample, receive_ns)
+    pipeline.finish()
+    est = [e for e in estimates if not e.predicted]
+    t_flight = np.array([e.sensor_t_ns for e in est]) - round(IMU_UPTIME_S * 1e9)  # the IMU node's clock to the flight's
+    err = attitude_errors(t_flight, np.array([e.q_wxyz for e in est]), np.array([e.uncertainty_deg for e in est]),
+                          flight.t_ns, flight.q_true)
+    t = (err.t_ns - flight.t_ns[0]) * 1e-9
+    return tuple(float(np.sqrt(np.mean(err.total_deg[(t >= a) & (t < b)] ** 2))) for a, b in ((10.0, 25.0), (25.0, 30.0)))
+
+
+def test_a_faulty_two_node_bus_is_fused_as_well_as_a_clean_one() -> None:
+    """Frames lost, NaN and saturated IMU transfers stamped with nonsense times, a node flooding the bus with an
+    unknown type: each is one counted refusal, and the attitude (GNSS-aided, magnetometer from the GNSS node)
+    is as good as from the clean bus. Measured: 1.80 deg RMS in turns (10-25 s) and 1.96 in the fast manoeuvres
+    (25-30 s) clean, 1.82 and 1.95 faulty."""
+    flight = simulate(SimConfig(seed=3, duration_s=30.0, imu_rate_hz=200.0))
+    bus = vehicle_bus(flight, gnss_latency_s=0.05, gnss_jitter_s=0.03)
+    faulty, expected = with_faults(bus, np.random.default_rng(5))
+    decoder = DroneCanDecoder()
+    decoded = [(rx_ns(f), s) for f in faulty for s in decoder.feed(f)]
+    assert {k: v for k, v in decoder.stats.items() if k not in ("accepted", "ignored")} == expected
+    assert decoder.stats["accepted"] == bus.imu_sent - expected["bad_toggle"] + bus.mag_sent + bus.fix_sent + bus.solution_sent
+    clean_decoder = DroneCanDecoder()
+    clean = [(rx_ns(f), s) for f in bus.frames for s in clean_decoder.feed(f)]
+    clean_errors, faulty_errors = fused_errors_deg(flight, clean, 0.05), fused_errors_deg(flight, decoded, 0.05)
+    assert max(clean_errors) < 2.5, clean_errors
+    assert all(f < c + 0.1 for f, c in zip(faulty_errors, clean_errors)), (faulty_errors, clean_errors)
