@@ -691,7 +691,7 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     if cfg_out is not None:
         _check_output(cfg_out, "--config-out")
     try:
-        data = read_sensor_log(args.source, args.format, args.start, args.duration)
+        data = read_sensor_log(args.source, args.format, args.start, args.duration, progress=sys.stderr)
     except UsageError as exc:
         raise type(exc)(f"import: {exc}") from exc
     s = write_mcap(data, args.output, cfg_out, progress=sys.stderr)

@@ -68,12 +68,14 @@ import os
 import re
 from collections import Counter, defaultdict
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
 from drivers.euler import quaternion_from_euler
 from drivers.samples import GnssSample
 from drivers.timebase import MAX_TIME_NS
+from fuser.progress import progress_bar
 
 from .importers import (MAVLINK_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest, in_cut, mag_on_next_imu,
                         rest_field_source)
@@ -139,12 +141,14 @@ def _python_indexer():
             os.environ["PYMAVLINK_FAST_INDEX"] = before
 
 
-def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
+def _read_records(path: Path, progress: TextIO | None = None) -> tuple[dict[str, list], dict, Counter]:
     """The records the import uses, as plain rows (of one boot: :func:`_one_boot`), the log's parameters, and what
     was skipped.
 
     Every record is parsed in file order (``recv_msg``): DFReader's by-type index stops at the first
     record of an unknown type, which a corrupt stretch of the log can fake, and would lose the rest.
+    ``progress``: where to draw a bar of the records read (only if it is a terminal; the count DFReader's index
+    found is its total).
     """
     from pymavlink.DFReader import DFReader_binary
 
@@ -159,7 +163,7 @@ def _read_records(path: Path) -> tuple[dict[str, list], dict, Counter]:
         chatter.truncate()  # the indexer's complaints; the parse below reports the same bytes once
         whole_to = log.offset  # where the last whole record ends
         try:
-            while (m := log.recv_msg()) is not None:
+            for m in progress_bar(iter(log.recv_msg, None), sum(log.counts), "read", " records", progress):
                 whole_to = log.offset
                 name = m.get_type()
                 if name in _TYPES:
@@ -265,11 +269,13 @@ def _gnss(gps: list, gpa: list) -> tuple[list[GnssSample], float | None]:
     return fixes, first_unix
 
 
-def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | None = None, field_rest_s: float = 2.0) -> SensorData:
+def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | None = None, field_rest_s: float = 2.0,
+                   progress: TextIO | None = None) -> SensorData:
     """An ArduPilot DataFlash log's IMUs, magnetometers, GPS and ATT in the project's conventions
-    (module docstring); ``start_s``/``duration_s`` cut it, counted from the first IMU sample."""
+    (module docstring); ``start_s``/``duration_s`` cut it, counted from the first IMU sample; ``progress``: where to
+    draw a bar while the records are read (only if it is a terminal)."""
     path = Path(path)
-    rows, params, skipped = _read_records(path)
+    rows, params, skipped = _read_records(path, progress)
     instances = sorted(int(k[3:]) for k in rows if k.startswith("imu"))
     if not instances:  # (an instance the cut leaves empty is dropped below)
         damage = f" (DFReader skipped {skipped['corrupt_bytes']:,} corrupt bytes: a damaged one?)" if skipped["corrupt_bytes"] else ""

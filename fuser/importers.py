@@ -95,6 +95,7 @@ Reference field
 from __future__ import annotations
 
 import contextlib
+import functools
 import heapq
 import io
 import math
@@ -678,10 +679,12 @@ def is_importable(path: str | Path) -> bool:
     return Path(path).suffix.lower() in SUFFIXES
 
 
-def read_sensor_log(path: str | Path, fmt: str | None = None, start_s: float = 0.0, duration_s: float | None = None) -> SensorData:
+def read_sensor_log(path: str | Path, fmt: str | None = None, start_s: float = 0.0, duration_s: float | None = None,
+                    progress: TextIO | None = None) -> SensorData:
     """A BROAD trial, PX4 ULog or DataFlash log read by its format's reader (``fmt``: from the name if None), every
     way it can fail one line for the user: :class:`~fuser.errors.UsageError` for a name no format has or a reader
-    package that is not installed, :class:`~fuser.errors.NotALogError` for a file the reader refuses."""
+    package that is not installed, :class:`~fuser.errors.NotALogError` for a file the reader refuses. ``progress``:
+    where to draw a bar while a DataFlash log is read (h5py and pyulog read a file whole, without one)."""
     from fuser.dataflash import read_dataflash
     from fuser.errors import NotALogError, UsageError, require_package
 
@@ -691,7 +694,7 @@ def read_sensor_log(path: str | Path, fmt: str | None = None, start_s: float = 0
         raise UsageError(str(exc)) from exc
     if fmt in READER_PACKAGES:
         require_package(READER_PACKAGES[fmt], "import", f"reading {fmt} logs")
-    reader = {"broad": read_broad, "px4": read_px4, "dataflash": read_dataflash}[fmt]
+    reader = {"broad": read_broad, "px4": read_px4, "dataflash": functools.partial(read_dataflash, progress=progress)}[fmt]
     try:
         return reader(path, start_s, duration_s)
     except Exception as exc:  # noqa: BLE001 - h5py, pyulog and DFReader raise anything on a file that is not theirs
@@ -709,4 +712,4 @@ def import_log(
 ) -> ImportSummary:
     """Read a BROAD trial, PX4 ULog or ArduPilot DataFlash log and write the MCAP ``out`` (and the TOML ``config_path``);
     failures as :func:`read_sensor_log`'s."""
-    return write_mcap(read_sensor_log(path, fmt, start_s, duration_s), out, config_path, progress)
+    return write_mcap(read_sensor_log(path, fmt, start_s, duration_s, progress), out, config_path, progress)
