@@ -249,14 +249,17 @@ class DroneCanDecoder(Decoder):
         return payload
 
     def _start(self, can_id: int, partial: _Partial) -> None:
-        """Track a new transfer, dropping (and counting) stale or excess unfinished ones."""
+        """Track a new transfer, dropping (and counting) stale or excess unfinished ones; a spoilt one gives way."""
         partials = self._partials
         for key in [k for k, p in partials.items() if partial.t_first - p.t_first > TRANSFER_TIMEOUT_S]:
             if not partials.pop(key).spoilt:
                 self._note("incomplete_transfer", f"id {key:#x} timed out")
         if len(partials) >= MAX_PENDING_TRANSFERS:
-            self._note("too_many_transfers", f"id {can_id:#x}: {len(partials)} unfinished transfers already")
-            return
+            spoilt = next((k for k, p in partials.items() if p.spoilt), None)
+            if spoilt is None:
+                self._note("too_many_transfers", f"id {can_id:#x}: {len(partials)} unfinished transfers already")
+                return
+            del partials[spoilt]  # its remaining frames, if any come, count once more as an orphan_frame
         partials[can_id] = partial
 
     def _stamp_transfer(self, node: int, kind: str, instance: int, usec: int, t_rx: float) -> tuple[int, Stream]:

@@ -233,3 +233,16 @@ def test_a_faulty_two_node_bus_is_fused_as_well_as_a_clean_one() -> None:
     clean_errors, faulty_errors = fused_errors_deg(flight, clean, 0.05), fused_errors_deg(flight, decoded, 0.05)
     assert max(clean_errors) < 2.5, clean_errors
     assert all(f < c + 0.1 for f, c in zip(faulty_errors, clean_errors)), (faulty_errors, clean_errors)
+
+
+def test_frames_of_spoilt_transfers_never_crowd_out_a_real_one() -> None:
+    """A spoilt transfer is remembered (to drop the rest of its frames uncounted) only while there is room,
+    and gives its place up to a transfer that starts: continuation frames from 127 nodes at four priorities
+    (garbage on the bus, or a burst of lost start frames) must not make the IMU's next transfer too_many_transfers."""
+    decoder = DroneCanDecoder()
+    orphans = [raw_frame(bytes(7) + b"\x01", node) for node in range(1, 128) if node != IMU_NODE]
+    orphans = [can.Message(arbitration_id=(prio << 24) | (f.arbitration_id & 0xFFFFFF), data=f.data, is_extended_id=True,
+                           timestamp=1.0) for prio in range(4) for f in orphans]
+    out = feed(decoder, orphans + next_imu())
+    assert [s.t_ns for s in out] == [2_000_000_000]
+    assert decoder.stats == {"orphan_frame": len(orphans), "accepted": 1}
