@@ -17,9 +17,8 @@ Nothing here uses the project's encoders or decoders: payloads and frames come f
 from __future__ import annotations
 
 import heapq
-import math
 from dataclasses import dataclass, field
-from typing import Any, Iterator
+from typing import Any
 
 import can
 import dronecan
@@ -182,10 +181,3 @@ def vehicle_bus(flight: Flight, gnss_latency_s: float = 0.05, gnss_jitter_s: flo
 def rx_ns(frame: can.Message) -> int:
     """A frame's receive time in integer nanoseconds (as a source thread would stamp it)."""
     return round(frame.timestamp * 1e9)
-
-
-def angle_deg(q_a: Any, q_b: Any) -> float:
-    """Rotation angle between two unit quaternions (w, x, y, z), degrees."""
-    d = abs(float(np.dot(q_a, q_b)))
-    return math.degrees(2.0 * math.acos(min(1.0, d)))
-
