@@ -682,7 +682,6 @@ def _print_not_imported(source: str, skipped: dict[str, int]) -> None:
 
 def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     from fuser.importers import read_sensor_log, write_mcap
-    from fuser.inputs import NOT_REFUSALS
 
     if not Path(args.source).is_file():
         raise UsageError(f"import: no such file: {args.source}")
@@ -698,9 +697,8 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     print(f"import: {s.imu} IMU + {s.attitude} attitude + {s.gnss} GNSS messages through MAVLink, {s.truth} reference attitudes -> {s.path}")
     _print_not_imported(args.source, s.skipped)
     print(f"reference field (N, E, D gauss): {s.mag_field_ned_gauss}" + (f"; replay with --config {s.config_path}" if s.config_path else ""))
-    refused = {k: v for k, v in s.decoder_stats.items() if k not in NOT_REFUSALS and v}
-    if refused:
-        print(f"decoder refused: {refused}")
+    if s.refused:
+        print(f"decoder refused: {s.refused}")
     return 0
 
 

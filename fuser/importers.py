@@ -237,6 +237,14 @@ class ImportSummary:
     gnss: int = 0
     skipped: dict[str, int] = field(default_factory=dict)
 
+    @property
+    def refused(self) -> dict[str, int]:
+        """The samples the decoder refused on their way into the MCAP, by reason (its stats but the counts of what it
+        took or ignored): left out of the import as much as ``skipped``."""
+        from fuser.inputs import NOT_REFUSALS  # noqa: PLC0415 - fuser.inputs reads .tlogs: only for this
+
+        return {k: v for k, v in sorted(self.decoder_stats.items()) if k not in NOT_REFUSALS and v}
+
 
 def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     return quat.rotate(np.broadcast_to(q, v.shape[:-1] + (4,)), v)

@@ -68,8 +68,9 @@ class ReplaySummary:
     inputs: InputReport | None = None
     """A .tlog's account: decodable IMU messages, those the loop took, everything refused by reason."""
     imported: dict[str, int] | None = None
-    """For a log replayed through ``import`` (DataFlash, ULog, BROAD): what the import left out, by reason
-    (:attr:`fuser.importers.ImportSummary.skipped`); None for an MCAP or a .tlog."""
+    """For a log replayed through ``import`` (DataFlash, ULog, BROAD): what the import left out, by reason: the records
+    it skipped and the samples its decoder refused (:attr:`fuser.importers.ImportSummary.skipped` and ``refused``, as
+    ``import`` prints them); None for an MCAP or a .tlog."""
 
     @property
     def samples_per_s(self) -> float:
@@ -223,14 +224,15 @@ def _replay_imported(log: Path, out: Path, config: FuserConfig, progress: TextIO
     """A DataFlash log, PX4 ULog or BROAD trial: imported (:func:`fuser.importers.import_log`, into a temporary MCAP
     beside ``out``) and that replayed, with the reference field the import found unless ``config`` sets one: the
     same estimates as ``import LOG -o X.mcap`` then ``replay X.mcap --config X.toml``, in one step, so that a batch
-    of such logs each gets its own field. What the import left out is in the summary's ``imported``."""
+    of such logs each gets its own field. What the import left out (skipped, or refused by its decoder) is in the
+    summary's ``imported``."""
     start = time.monotonic()
     with tempfile.TemporaryDirectory(prefix=_import_prefix(log), dir=out.parent) as folder:
         imported = import_log(log, Path(folder) / f"{log.stem}.mcap", progress=progress)
         if config.mag.field_ned_gauss is None:
             config = config.replace(mag={"field_ned_gauss": imported.mag_field_ned_gauss})
         summary = _replay(imported.path, out, config, progress, log.name)
-    return with_fields(summary, seconds=time.monotonic() - start, imported=imported.skipped)
+    return with_fields(summary, seconds=time.monotonic() - start, imported=imported.skipped | imported.refused)
 
 
 def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, source_name: str) -> ReplaySummary:
