@@ -237,9 +237,10 @@ def _replay_imported(log: Path, out: Path, config: FuserConfig, progress: TextIO
 
 def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, source_name: str) -> ReplaySummary:
     """:func:`replay` of an MCAP or a .tlog; ``source_name`` goes into the output's metadata (``source_log``)."""
-    if log.suffix == ".tlog":
+    is_tlog = log.suffix.lower() == ".tlog"  # any case: FAT cards and some tools name files in capitals
+    if is_tlog:
         _check_tlog(log)
-    contents, messages = (None, None) if log.suffix == ".tlog" else _read_mcap(log)
+    contents, messages = (None, None) if is_tlog else _read_mcap(log)
     from fuser.pipeline import Pipeline  # noqa: PLC0415 - the model's kernels load only once the log is known to be one
 
     partial = out.with_name(f"{_partial_prefix(out)}{os.getpid()}.partial")

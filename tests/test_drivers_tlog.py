@@ -168,3 +168,13 @@ def test_files_that_are_not_logs_give_nothing_and_raise_nothing(tmp_path, conten
     path.write_bytes(content)
     got, src = read(path)
     assert got == [] and src.stats["accepted"] == 0
+
+
+def test_a_telemetry_log_named_in_capitals_is_replayed_as_one(telemetry_log, tmp_path):
+    """FAT-formatted cards and some Windows tools name files in capitals (FLIGHT.TLOG, as ArduPilot's own 00000042.BIN):
+    the name's case does not change what the file is. It was refused as 'not an MCAP file'."""
+    upper = tmp_path / "FLIGHT.TLOG"
+    upper.write_bytes(telemetry_log.path.read_bytes())
+    summary = replay(upper, tmp_path / "out.mcap", FuserConfig(), progress=None)
+    assert summary.inputs is not None and summary.inputs.imu_decodable == telemetry_log.imu_intact
+    assert summary.inputs.imu_used >= 0.99 * telemetry_log.imu_intact
