@@ -13,8 +13,9 @@ MagneticFieldStrength2 carries none (nor does a Fix2 with a zero timestamp),
 so its time is the frame's receive time (``Message.timestamp``) moved onto the
 node's time base by the offset of the least delayed timestamped transfer of the
 *same node* (:class:`_TimeBase`; a stream that starts before one is seen stays
-on the receive time): two nodes' clocks need not agree. Fix2's ``gnss_timestamp`` is on a GNSS time standard (UTC, GPS, TAI,
-with leap seconds), not the node's clock, and is not used for the sample time.
+on the receive time): two nodes' clocks need not agree. Fix2's
+``gnss_timestamp`` is on a GNSS time standard (UTC, GPS, TAI, with leap
+seconds), not the node's clock, and is not used for the sample time.
 """
 
 from __future__ import annotations
@@ -83,7 +84,7 @@ class _Partial:
 
     __slots__ = ("tid", "toggle", "data", "last", "repeats", "t_first", "spoilt")
 
-    def __init__(self, tid: int, data: bytes, t_first: float, spoilt: bool = False) -> None:
+    def __init__(self, tid: int, data: bytes, t_first: float) -> None:
         self.tid = tid
         self.toggle = _TOGGLE
         self.data = bytearray(data)
@@ -92,7 +93,7 @@ class _Partial:
         self.repeats = 0
         """Frames taken for repeats and dropped; counted (``duplicate_frame``) once the CRC shows they were."""
         self.t_first = t_first
-        self.spoilt = spoilt
+        self.spoilt = False
 
 
 class _TimeBase:
