@@ -30,7 +30,7 @@ REBOOT_BACK_NS = 1_000_000_000
 class Sender:
     """What a decoder knows of one sender (MAVLink system and component, DroneCAN node)."""
 
-    __slots__ = ("latest_ns", "last_seq", "pending_lost", "rx_offset_ns")
+    __slots__ = ("latest_ns", "last_seq", "pending_lost")
 
     def __init__(self) -> None:
         self.latest_ns: dict[str, int] = {}
@@ -40,8 +40,6 @@ class Sender:
         self.pending_lost = 0
         """MAVLink: frames missing at the latest sequence gap, counted as lost once a boot-clock time
         from the sender shows that it did not restart (a restart begins the sequence again)."""
-        self.rx_offset_ns: int | None = None
-        """DroneCAN: sender time minus receive time on the node's latest timestamped transfer."""
 
 
 class Stream:
