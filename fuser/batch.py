@@ -71,7 +71,8 @@ class LogResult:
     accepted: int = 0
     """Samples the loop buffered for a tick (the others came late)."""
     rejected: int = 0
-    """Late samples and gated measurements (``REJECTION_COUNTERS``)."""
+    """Late samples and gated measurements (``REJECTION_COUNTERS``), the column "late+gated": not the samples a
+    decoder refused (``input_refused``, a single ``replay``'s "not used")."""
     error_deg: float | None = None
     """RMS total error against ``reference`` after the first ``SCORE_SINCE_S`` seconds (all of a shorter log)."""
     reference: str | None = None
@@ -297,7 +298,7 @@ def _listed(counts: dict[str, int]) -> str:
 def format_summary(results: Iterable[LogResult], wall_s: float | None = None) -> list[str]:
     """The summary table, one row per log, and a closing line with the totals."""
     results = list(results)
-    head = ("log", "status", "samples", "estimates", "seconds", "samples/s", "accepted", "rejected", "error (deg RMS)")
+    head = ("log", "status", "samples", "estimates", "seconds", "samples/s", "accepted", "late+gated", "error (deg RMS)")
     rows = []
     for r in results:
         if r.ok:

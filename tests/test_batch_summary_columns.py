@@ -1,0 +1,18 @@
+"""The batch summary names its columns for what they count.
+
+The column that sums the loop's ``late`` samples and the model's gated measurements (``REJECTION_COUNTERS``) was
+headed "rejected", which read as "samples refused" beside "accepted" ("accepted 903, rejected 527"), although the
+samples a single ``replay LOG`` reports as refused are the decoder's ("not used: ..."), and gated measurements come
+from accepted samples."""
+
+from fuser import batch
+
+
+def test_the_late_and_gated_column_is_not_called_rejected():
+    result = batch.LogResult("a.tlog", "out/a.mcap", True, samples=1430, estimates=500, seconds=1.0, accepted=903, rejected=527)
+    head, row, _total = batch.format_summary([result])
+    columns = head.split()
+    assert "rejected" not in columns
+    assert "late+gated" in columns
+    # the count sits under its name (numeric columns are right-aligned)
+    assert row[:head.index("late+gated") + len("late+gated")].endswith("527")
