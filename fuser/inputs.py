@@ -28,8 +28,10 @@ SIM_LINK_LATENCY_NS = 1_000_000
 """Receive time of a simulated sample: its send time plus this link latency."""
 USED_WARNING_FRACTION = 0.9
 """Below this fraction of the decodable IMU messages reaching the loop, the report warns."""
-NOT_REFUSALS = ("accepted", "ignored")
-"""Counts in a decoder's ``stats`` that are not refusals."""
+NOT_REFUSALS = ("accepted", "ignored", "not_dronecan_message", "reboot", "clock_jump", "record_clock_step", "lost")
+"""Counts in a decoder's (and a .tlog reader's) ``stats`` that are not refusals (drivers/README.md, "Counted but not
+refusals"): what was used, valid messages and frames the drivers do not use (heartbeats, a bus's service traffic),
+events confirmed in a sender's clock or a log's, and the frames missing in MAVLink's sequence numbers."""
 
 
 @dataclass(frozen=True)
@@ -37,13 +39,14 @@ class InputReport:
     """What an input gave: its decodable IMU messages, how many reached the loop, and every count by reason.
 
     ``imu_decodable`` counts the valid IMU messages on the input (every sender, as pymavlink alone
-    decodes them); ``imu_used`` the IMU samples the loop took in time (``None`` where only the
-    decoder's view is known: samples accepted). ``stats`` is the decoder's (and the log reader's).
+    decodes them); ``imu_used`` the IMU samples the loop took in time, or for a live source the
+    decoder's IMU samples accepted. Both are ``None`` where the decoder does not count its messages
+    by type (DroneCAN): then nothing is said of the IMU share. ``stats`` is the decoder's (and the log reader's).
     """
 
     name: str
-    imu_decodable: int
-    imu_used: int
+    imu_decodable: int | None
+    imu_used: int | None
     stats: Mapping[str, int]
 
     @property
@@ -52,15 +55,20 @@ class InputReport:
 
     def lines(self) -> list[str]:
         """One line of use, one of refusals by reason (what ``replay`` and ``run`` print at the end)."""
-        share = f" ({100 * self.imu_used / self.imu_decodable:.1f}%)" if self.imu_decodable else ""
-        used = f"{self.name}: {self.imu_used:,} of {self.imu_decodable:,} IMU messages used{share}; "
+        if self.imu_decodable is None or self.imu_used is None:
+            used = f"{self.name}: IMU messages not counted (its decoder does not count messages by type); "
+        else:
+            share = f" ({100 * self.imu_used / self.imu_decodable:.1f}%)" if self.imu_decodable else ""
+            used = f"{self.name}: {self.imu_used:,} of {self.imu_decodable:,} IMU messages used{share}; "
         used += f"{self.stats.get('accepted', 0):,} samples accepted, {self.stats.get('ignored', 0):,} messages ignored"
+        counted = [f"{k}={self.stats[k]:,}" for k in NOT_REFUSALS if k not in ("accepted", "ignored") and self.stats.get(k)]
+        used += f"; also counted: {', '.join(counted)}" if counted else ""
         refused = ", ".join(f"{k}={v:,}" for k, v in self.refused.items())
         return [used, f"{self.name}: not used: {refused or 'nothing'}"]
 
     def warning(self) -> str | None:
         """A warning when less than 90% of the decodable IMU messages reached the loop."""
-        if not self.imu_decodable or self.imu_used >= USED_WARNING_FRACTION * self.imu_decodable:
+        if not self.imu_decodable or self.imu_used is None or self.imu_used >= USED_WARNING_FRACTION * self.imu_decodable:
             return None
         return (f"warning: {self.name}: only {self.imu_used:,} of {self.imu_decodable:,} decodable IMU messages "
                 f"({100 * self.imu_used / self.imu_decodable:.0f}%) reached the loop; see 'not used' for why")
@@ -108,11 +116,15 @@ class TlogInputs:
 
 
 def source_report(name: str, source: Any) -> InputReport:
-    """The decoder's view of a live source (IMU samples accepted, not what the loop took)."""
+    """The decoder's view of a live source (IMU samples accepted, not what the loop took).
+
+    Only the MAVLink decoder counts its messages by type: for another (DroneCAN) the IMU counts are
+    ``None``, and the report says they were not counted rather than "0 of 0".
+    """
     decoder = source.decoder
-    decodable = _imu_decodable(decoder) if isinstance(decoder, MavlinkDecoder) else 0
-    used = sum(decoder.used[m] for m in IMU_MESSAGES) if isinstance(decoder, MavlinkDecoder) else 0
-    return InputReport(name, decodable, used, dict(source.stats))
+    if not isinstance(decoder, MavlinkDecoder):
+        return InputReport(name, None, None, dict(source.stats))
+    return InputReport(name, _imu_decodable(decoder), sum(decoder.used[m] for m in IMU_MESSAGES), dict(source.stats))
 
 
 def sim_ticks(flight: Flight, transport: str = "mavlink") -> Iterator[tuple[int, object, list[Sample]]]:
