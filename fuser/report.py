@@ -94,9 +94,16 @@ def reference_of(contents: LogContents) -> Reference:
 
 def _unscored(path: str | Path, contents: LogContents) -> str:
     """Why a log cannot be scored, in the user's terms."""
-    if not any(e.sensor_t_ns is not None for e in contents.estimates()):
+    estimates = timed = 0
+    for e in contents.estimates():
+        estimates += 1
+        timed += e.sensor_t_ns is not None
+    if not estimates:
         return (f"{path} holds no estimates (an imported or input-only log): fuse it first, "
                 f"'bingham-fuser replay {path} -o fused.mcap', then report fused.mcap")
+    if not timed:
+        return (f"none of the {estimates:,} estimates in {path} has an IMU time: no IMU sample reached the filter (the log "
+                "it was fused from has no IMU messages?), so there is no time to line them up with a reference by")
     return f"{path} has no reference attitude to score against (no truth, and fewer than two autopilot attitude samples)"
 
 
@@ -121,6 +128,21 @@ def errors_of_log(path: str | Path, contents: LogContents | None = None) -> tupl
     q = np.array([e.q_wxyz for e in estimates], dtype=float)
     unc = np.array([e.uncertainty_deg for e in estimates], dtype=float)
     return kind, attitude_errors(t, q, unc, ref_t, ref_q)
+
+
+def _circular(contents: LogContents, ref: Reference) -> str | None:
+    """A note when the reference is the autopilot's estimate and the fuser took that estimate as a measurement (``auto``
+    with a slow or no IMU, or ``--attitude-sigma``): the score is then largely agreement with its own input."""
+    if ref.ground_truth:
+        return None
+    taken = sum(isinstance(s, AttitudeSample) for s, _ in contents.inputs())
+    counters = next((e.counters for e in reversed(contents.estimates())), {})
+    fused = taken - sum(v for k, v in counters.items() if k == "attitude_unused" or k.startswith("attitude_gated"))
+    if fused <= 0:
+        return None
+    return (f"note: the fuser fused {fused:,} of the autopilot's {taken:,} attitude samples, and {ref.name} is that "
+            "autopilot's estimate: the comparison is circular (it shows how closely the fuser followed its input); "
+            "replay with --no-attitude to score the fuser's own estimate")
 
 
 def _window(err: AttitudeErrors, since_s: float) -> float:
@@ -148,7 +170,8 @@ def score_log(path: str | Path, since_s: float = CONVERGENCE_S) -> list[str]:
     ref = reference_of(contents)
     if err.t_ns.size == 0:
         return [f"{path}: no estimate within the time span of the {ref.name} to score against"]
-    return _score_lines(ref, err, _window(err, since_s))
+    circular = _circular(contents, ref)
+    return _score_lines(ref, err, _window(err, since_s)) + ([circular] if circular else [])
 
 
 def _euler_deg(q: NDArray) -> NDArray:
@@ -277,8 +300,10 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
     fig.savefig(out_dir / "counters.png", dpi=100)
     plt.close(fig)
 
-    lines = _score_lines(ref, err, since_s)
-    (out_dir / "summary.md").write_text(_summary(Path(path).name, ref, err, rms, since_s, final))
+    circular = _circular(contents, ref)
+    lines = _score_lines(ref, err, since_s) + ([circular] if circular else [])
+    (out_dir / "summary.md").write_text(_summary(Path(path).name, ref, err, rms, since_s, final)
+                                        + (f"\n**Note:** {circular.removeprefix('note: ')}.\n" if circular else ""))
     return lines + [f"report: {out_dir / 'summary.md'}, attitude.png, error.png, counters.png"]
 
 
