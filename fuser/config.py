@@ -501,6 +501,9 @@ class GnssSettings(Settings):
     """Two fixes further apart than this are not differenced (the acceleration between them is too smeared),
     and the aiding stops once the latest fix is this old (the gravity update falls back to the
     accelerometer alone)."""
+    noise_window_s: Annotated[float, Range(gt=0, unit="s")] = 10.0
+    """The velocity noise a receiver delivers is measured over about this long (:mod:`fuser.model.velocity`,
+    "Noise"); where it is above what the receiver claims (or ``velocity_noise_m_s``), the measured one is used."""
     gate_sigma: Annotated[float, Range(gt=0)] = 5.0
     """A fix whose acceleration differs from the accelerometer's (rotated by the estimate) by more than this
     many sigma is a jump: kept out of the low-pass."""

@@ -49,7 +49,7 @@ class UpdateDiagnostic(NamedTuple):
     """Squared innovation over the squared gate (module docstring): > 1 is outside."""
     values: tuple[tuple[str, Any], ...] = ()
     """Further named values of this update, in order (``mag_field``: the field and where it is from; ``velocity``:
-    the acceleration check in m/s^2; the aided ``gravity``: what aided it); added to the record as keys."""
+    the acceleration check in m/s^2 and the velocity noise it used; the aided ``gravity``: what aided it); added to the record as keys."""
 
     def to_dict(self) -> dict[str, Any]:
         out = {"update": self.update, "outcome": self.outcome, "reason": self.reason, "innovation_deg": self.innovation_deg,
@@ -124,11 +124,14 @@ class Diagnostic(NamedTuple):
     accel_gate_m_s2: float
     interval_s: float
     vertical: bool
+    velocity_noise_m_s: float
+    """The velocity noise per axis the pair was weighed with: the receiver's claim or, if larger, what its fixes show."""
 
 
 DIAGNOSTIC = np.dtype([("update", "i8"), ("outcome", "i8"), ("reason", "i8"), ("innovation_rad", "f8"), ("sigma_rad", "f8"),
                        ("test_ratio", "f8"), ("aiding", "i8"), ("accel_check", "?"), ("accel_innovation_m_s2", "f8"),
-                       ("accel_gate_m_s2", "f8"), ("interval_s", "f8"), ("vertical", "?")], align=True)
+                       ("accel_gate_m_s2", "f8"), ("interval_s", "f8"), ("vertical", "?"),
+                       ("velocity_noise_m_s", "f8")], align=True)
 """A :class:`Diagnostic` as a record of the tick's output array."""
 
 
@@ -136,14 +139,14 @@ DIAGNOSTIC = np.dtype([("update", "i8"), ("outcome", "i8"), ("reason", "i8"), ("
 def none() -> Diagnostic:
     """No reading this tick."""
     nan = math.nan
-    return Diagnostic(False, 0, 0, 0, nan, nan, nan, 0, False, nan, nan, nan, False)
+    return Diagnostic(False, 0, 0, 0, nan, nan, nan, 0, False, nan, nan, nan, False, nan)
 
 
 @njit(cache=True, nogil=True)
 def of(update: int, outcome: int, reason: int, innovation_rad: float, sigma_rad: float, test_ratio: float, aiding: int) -> Diagnostic:
     """An update's account without an acceleration check (radians, as the updates compute them; NaN for None)."""
     nan = math.nan
-    return Diagnostic(True, update, outcome, reason, innovation_rad, sigma_rad, test_ratio, aiding, False, nan, nan, nan, False)
+    return Diagnostic(True, update, outcome, reason, innovation_rad, sigma_rad, test_ratio, aiding, False, nan, nan, nan, False, nan)
 
 
 @njit(cache=True, nogil=True, inline="always")  # inlined: its index starts as a literal 0 at every call site's first call
@@ -155,7 +158,7 @@ def emit(out: np.ndarray, n: int, d: Diagnostic) -> int:
     r.update, r.outcome, r.reason = d.update, d.outcome, d.reason
     r.innovation_rad, r.sigma_rad, r.test_ratio, r.aiding = d.innovation_rad, d.sigma_rad, d.test_ratio, d.aiding
     r.accel_check, r.accel_innovation_m_s2, r.accel_gate_m_s2 = d.accel_check, d.accel_innovation_m_s2, d.accel_gate_m_s2
-    r.interval_s, r.vertical = d.interval_s, d.vertical
+    r.interval_s, r.vertical, r.velocity_noise_m_s = d.interval_s, d.vertical, d.velocity_noise_m_s
     return n + 1
 
 
@@ -164,12 +167,12 @@ def decoded(records: np.ndarray) -> list[UpdateDiagnostic]:
     out = []
     degrees = math.degrees
     for r in records.tolist():
-        update, outcome, reason, innovation, sigma, ratio, aiding, check, accel_innovation, accel_gate, interval, vertical = r
+        update, outcome, reason, innovation, sigma, ratio, aiding, check, accel_innovation, accel_gate, interval, vertical, noise = r
         ratio = None if ratio != ratio else ratio  # NaN: None
         if check:  # a velocity pair's: its acceleration check as values, no angles
             out.append(UpdateDiagnostic(UPDATES[update], OUTCOMES[outcome], REASONS[reason], None, None, ratio, (
                 ("accel_innovation_m_s2", accel_innovation), ("accel_gate_m_s2", accel_gate), ("interval_s", interval),
-                ("vertical", vertical))))
+                ("vertical", vertical), ("velocity_noise_m_s", noise))))
             continue
         out.append(UpdateDiagnostic(UPDATES[update], OUTCOMES[outcome], REASONS[reason],  # type: ignore[arg-type]
                                     None if innovation != innovation else degrees(innovation), None if sigma != sigma else degrees(sigma),

@@ -157,6 +157,11 @@ VELOCITY = _record(
     ("stream_vel_ned_m_s", "f8", (MAX_GNSS_STREAMS, 3)),
     ("stream_vertical", "u1", (MAX_GNSS_STREAMS,)),  # 1: its down component was measured
     ("stream_noise_m_s", "f8", (MAX_GNSS_STREAMS,)),  # one-sigma velocity noise per axis
+    ("stream_has_residual", "u1", (MAX_GNSS_STREAMS,)),  # 1: the residual below is its last pair's
+    ("stream_residual_m_s", "f8", (MAX_GNSS_STREAMS, 3)),  # its last pair's velocity change less the accelerometer's
+    ("stream_residual_vertical", "u1", (MAX_GNSS_STREAMS,)),  # 1: that residual's down component was measured
+    ("stream_measured_var_m2_s2", "f8", (MAX_GNSS_STREAMS,)),  # the velocity noise variance its residuals show
+    ("stream_residual_count", "i8", (MAX_GNSS_STREAMS,)),  # how many residual differences that average holds (capped)
     ("knots_first", "i8"),  # the accelerometer's history: the ring's first knot (FilterState.knots)
     ("knots_count", "i8"),
     ("has_lp", "?"),  # aiding: the two low-passes below
