@@ -21,6 +21,7 @@ upper bound is a strict xfail until the model estimates that bias.
 from __future__ import annotations
 
 import functools
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
@@ -45,20 +46,26 @@ TOTAL_BOUND_DEG = {"multirotor": 3.0, "aggressive": 4.0, "fixedwing": 3.0}
 TILT_BOUND_DEG = {"fixedwing": 2.0}
 
 
-def _fly(flight, config: FuserConfig, after_s: float = 5.0, counters: dict | None = None, watch=None):
-    """The flight's MAVLink bytes through the decoder and the loop, received 1 ms after sending; the errors after
+def received(flight) -> Iterator[tuple[int, list]]:
+    """The flight's MAVLink bytes through the decoder: (receive time, samples), received 1 ms after sending."""
+    for t, _, samples in sim_ticks(flight):
+        yield t + 1_000_000, samples
+
+
+def _fly(flight, config: FuserConfig, after_s: float = 5.0, counters: dict | None = None, watch=None, deliveries=None):
+    """The flight's samples (``deliveries``, :func:`received` by default) through the loop; the errors after
     ``after_s`` and the credible level of the truth at each of those estimates, the ticks' and the output
     predictor's (the loop's counters into ``counters``; ``watch(loop, estimate)`` called for each tick's estimate as
     the advance that made it returns)."""
     loop = FusionLoop(config)
     estimates = []
-    for t, _, samples in sim_ticks(flight):
-        for e in loop.advance(t + 1_000_000):
+    for receive_ns, samples in received(flight) if deliveries is None else deliveries:
+        for e in loop.advance(receive_ns):
             estimates.append(e)
             if watch is not None:
                 watch(loop, e)
         for s in samples:
-            estimates += loop.push(s, t + 1_000_000)  # between ticks, the output predictor's at every IMU sample
+            estimates += loop.push(s, receive_ns)  # between ticks, the output predictor's at every IMU sample
     estimates += loop.flush()
     est = [e for e in estimates if e.sensor_t_ns is not None]
     err = attitude_errors(np.array([e.sensor_t_ns for e in est]), np.array([e.q_wxyz for e in est]),

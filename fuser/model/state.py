@@ -171,7 +171,8 @@ VELOCITY = _record(
     ("noise_var_m2_s4", "f8"),  # variance per axis of the GNSS velocity noise left in the world low-pass
     ("noise_cov_m2_s3", "f8"),  # its covariance with the last fix's velocity noise
     ("has_last_fused_ns", "?"),
-    ("last_fused_ns", "i8"),  # the tick that last fused a pair into the low-pass
+    ("last_fused_ns", "i8"),  # the tick that last gave the gravity update a new reading of the low-pass
+    ("reading_due", "?"),  # a pair entered the low-pass in a tick without an IMU sample: the next one with one reads it
     ("has_recent", "?"),
     ("recent_world_m_s2", "f8", (3,)),  # g e_z - a of the pairs low-passed over gnss.raw_lowpass_s, aiding or not
     ("recent_ns", "i8"),  # when the newest pair in it was measured (the middle of its interval)

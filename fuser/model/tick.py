@@ -130,9 +130,10 @@ class VelocityTrack(NamedTuple):
     active: bool
     """Aiding is on: the gravity update is the aided one, not the plain one."""
     fused: bool
-    """A pair entered the low-pass in this tick: the aided update has a new reading."""
+    """The aided update has a new reading: a pair entered the low-pass in this tick, or in ticks since the last one with
+    an IMU sample."""
     interval_s: float
-    """Seconds since the previous tick that fused a pair (the aided readings' spacing)."""
+    """Seconds since the previous tick that had a new reading (the aided readings' spacing)."""
     moving: bool
     """A fix within ``max_age_s`` is faster than ``gnss.moving_speed_m_s``: the vehicle is not at rest."""
     lost: bool

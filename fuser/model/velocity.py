@@ -396,11 +396,17 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         # velocity_noise_m_s)
         n_diag = emit(diagnostics, n_diag, Diagnostic(True, VELOCITY, outcome, reason, nan, nan, ratio, NOT_AIDED, True, innovation_m_s2,
                                                       gate, span_s, both_vertical, noise_m_s))
+    # the low-pass's new reading goes to the gravity update at the first tick with an IMU sample (with a slower IMU
+    # than the loop, a pair fused in a tick without one was never read: a 50 Hz IMU in a 100 Hz loop lost half of
+    # them, and with their spacing counted from the lost ones the estimate diverged, 45 deg off in tilt)
+    due = fused or state.reading_due
+    read = due and has_accel
     had_fused, last_fused_ns = state.has_last_fused_ns, state.last_fused_ns
-    interval = dt_ns * 1e-9 if not had_fused or not fused else (tick_ns - last_fused_ns) * 1e-9
-    if fused:
+    interval = dt_ns * 1e-9 if not had_fused or not read else (tick_ns - last_fused_ns) * 1e-9
+    if read:
         last_fused_ns = tick_ns
-    has_last = had_fused or fused
+    state.reading_due = due and not has_accel
+    has_last = had_fused or read
     active = has_lp and has_last and tick_ns - last_fused_ns <= max_age_ns
     lost = not active and was_aiding
     if not active:
@@ -421,7 +427,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
     state.has_recent, state.recent_ns = has_recent, recent_ns
     vec3.store(state.recent_world_m_s2, recent_world)
     state.recent_noise_var_m2_s4, state.recent_noise_cov_m2_s3 = recent_var, recent_cov
-    return VelocityTrack(active, fused and active, interval, moving, lost), n_diag
+    return VelocityTrack(active, read and active, interval, moving, lost), n_diag
 
 
 @njit(cache=True, nogil=True)
