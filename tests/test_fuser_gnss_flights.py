@@ -26,6 +26,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
+from drivers.samples import GnssSample
 from drivers.scenarios import scenario
 from drivers.sim import SimConfig, simulate
 from fuser.config import FuserConfig
@@ -186,3 +187,28 @@ def test_a_faster_loop_is_not_less_accurate(gnss):
     flight = FLIGHTS["multirotor"]()
     rms = {rate: _fly(flight, FuserConfig().replace(rate_hz=rate, gnss={"enabled": gnss}))[0]["total"] for rate in (100.0, 200.0)}
     assert rms[200.0] <= 1.15 * rms[100.0], rms
+
+
+def _every_tenth_fix(flight) -> Iterator[tuple[int, list]]:
+    """The flight's deliveries with one GNSS fix in ten (a 1 Hz receiver)."""
+    fixes = 0
+    for receive_ns, samples in received(flight):
+        kept = []
+        for s in samples:
+            if isinstance(s, GnssSample):
+                fixes += 1
+                if fixes % 10:
+                    continue
+            kept.append(s)
+        yield receive_ns, kept
+
+
+@pytest.mark.xfail(strict=True, reason="1 Hz fixes: 11.5 deg off reporting 3.1, the truth inside the 90 % region on 29 % "
+                                       "of the ticks; the bias feedback learns the first seconds' corrections (README)")
+def test_with_one_fix_a_second_the_fixed_wing_is_not_overconfident():
+    """The Cessna's 60 s with a 1 Hz receiver (5 Hz and up: 1.0-2.3 deg, 100 %). Without the bias feedback
+    (``[fuser.bias] feedback_enabled = false``) 1.7 deg, 100 %: what the feedback learns in the first seconds, the
+    heading's convergence as a z bias (0.9 deg/s off) and each 1-s reading's tilt correction, is what is wrong."""
+    flight = FLIGHTS["fixedwing"]()
+    rms, level = _fly(flight, FuserConfig(), deliveries=_every_tenth_fix(flight))
+    assert np.mean(level <= 0.9) >= 0.85, (np.mean(level <= 0.9), rms)
