@@ -26,10 +26,10 @@ import mmap
 import re
 import struct
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from io import BytesIO
 from pathlib import Path
-from typing import NamedTuple
+from typing import Iterator, NamedTuple
 
 import zstandard
 from mcap.data_stream import ReadDataStream
@@ -39,7 +39,7 @@ from mcap.records import Channel, Metadata
 
 from .errors import NotALogError
 
-__all__ = ["MAGIC", "NotAnMcapError", "RawMessage", "Scan", "Skipped", "scan_mcap"]
+__all__ = ["MAGIC", "McapStream", "NotAnMcapError", "RawMessage", "Scan", "Skipped", "scan_mcap"]
 
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -165,14 +165,14 @@ def _chunk_records(body: bytes) -> bytes:
     return bytes(data)  # a copy only for an uncompressed chunk's slice of the file
 
 
-def _chunk_messages(data: bytes, channels: dict[int, str], out: list[RawMessage], orphans: list[tuple[int, int, int, bytes]]) -> None:
-    """Append the messages of a chunk's records to ``out``, registering the channels it declares.
+def _chunk_messages(data: bytes, channels: dict[int, str], orphans: list[tuple[int, int, int, bytes]]) -> list[RawMessage]:
+    """The messages of a chunk's records, registering the channels it declares.
 
     Messages on a channel not (yet) declared go to ``orphans`` as ``(channel id,
     log time, publish time, data)``, for the summary's channels to name later.
     Parsing the message headers with one ``unpack_from`` each is several times
-    faster than building mcap's record objects. Nothing is appended unless the
-    whole chunk parses.
+    faster than building mcap's record objects. Nothing is returned, registered
+    or appended unless the whole chunk parses.
     """
     found: list[RawMessage] = []
     lost: list[tuple[int, int, int, bytes]] = []
@@ -199,8 +199,8 @@ def _chunk_messages(data: bytes, channels: dict[int, str], out: list[RawMessage]
     except (McapError, struct.error, UnicodeDecodeError, ValueError) as e:
         raise _Damaged(f"chunk records do not parse ({e})") from e
     channels.update(known)
-    out += found
     orphans += lost
+    return found
 
 
 def _consistent_chunk(buf: mmap.mmap, pos: int, size: int) -> bool:
@@ -254,15 +254,55 @@ def _plausible_record(buf: mmap.mmap, pos: int, size: int) -> bool:
 
 def scan_mcap(path: str | Path) -> Scan:
     """Every message that can be read from the MCAP file ``path``, in file order (see the module doc)."""
-    with open(path, "rb") as f:
-        size = f.seek(0, 2)
-        if size == 0:
-            raise NotAnMcapError(f"{path} is empty")
-        f.seek(0)
-        if f.read(len(MAGIC)) != MAGIC:
-            raise NotAnMcapError(f"{path} is not an MCAP file (it does not start with the MCAP magic)")
-        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
-            return _Scanner(buf, size).run()
+    stream = McapStream(path)
+    messages = [m for group in stream for m in group]
+    return replace(stream.result, messages=messages)
+
+
+class McapStream:
+    """The messages of an MCAP file, one group at a time, in file order: what :func:`scan_mcap` returns, without
+    holding it. Iterating yields each sound chunk's messages, then those outside chunks (or whose channel only the
+    summary declares); the memory held is one chunk's, whatever the file's length. After the iteration,
+    :attr:`result` tells what was read (``complete``, ``error``, ``metadata``, ``skipped``; no ``messages``).
+
+    Raises :class:`NotAnMcapError` at once (not on iteration) if the file is not an MCAP. Each iteration reads the
+    file again, with the same result.
+    """
+
+    PAGES_KEPT = 16 << 20
+    """Bytes of the file read behind the current record that stay mapped in memory (see :meth:`__iter__`)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = path
+        with open(path, "rb") as f:
+            size = f.seek(0, 2)
+            if size == 0:
+                raise NotAnMcapError(f"{path} is empty")
+            f.seek(0)
+            if f.read(len(MAGIC)) != MAGIC:
+                raise NotAnMcapError(f"{path} is not an MCAP file (it does not start with the MCAP magic)")
+        self.result: Scan | None = None
+        """What the last complete iteration read (its ``messages`` empty); None before one has ended."""
+
+    def __iter__(self) -> Iterator[list[RawMessage]]:
+        """Each group of messages in file order. The pages of the file already read are released as reading goes
+        on (``MADV_DONTNEED``): a mapped file's pages count in the process's resident memory until then."""
+        with open(self.path, "rb") as f, mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
+            scanner = _Scanner(buf, len(buf))
+            released = 0
+            for group in scanner.groups():
+                released = _release(buf, released, scanner.pos - self.PAGES_KEPT)
+                yield group
+            self.result = scanner.result
+
+
+def _release(buf: mmap.mmap, start: int, end: int) -> int:
+    """Drop the pages of ``buf`` from ``start`` up to ``end`` (rounded down to a page) from memory; the new start."""
+    end -= end % mmap.PAGESIZE
+    if end <= start or not hasattr(mmap, "MADV_DONTNEED"):
+        return start
+    buf.madvise(mmap.MADV_DONTNEED, start, end - start)
+    return end
 
 
 class _Scanner:
@@ -271,7 +311,10 @@ class _Scanner:
     def __init__(self, buf: mmap.mmap, size: int) -> None:
         self.buf, self.size = buf, size
         self.channels: dict[int, str] = {}
-        self.found: list[RawMessage] = []
+        self.pos = len(MAGIC)
+        """Offset of the record being read."""
+        self.result: Scan | None = None
+        """Set when :meth:`groups` has ended."""
         self.orphans: list[tuple[int, int, int, bytes]] = []
         """Messages whose channel was not declared before them (it may be in the summary)."""
         self.metadata: dict[str, dict[str, str]] = {}
@@ -301,11 +344,13 @@ class _Scanner:
             self.skipped.messages_known = False
         self.counting = False
 
-    def run(self) -> Scan:
+    def groups(self) -> Iterator[list[RawMessage]]:
+        """The messages of each sound chunk, then those outside chunks; :attr:`result` set at the end."""
         buf, size, skipped = self.buf, self.size, self.skipped
         complete, error = False, None
         pos = len(MAGIC)
         while True:
+            self.pos = pos
             if pos + _RECORD.size > size:
                 error = "cut short: no footer" if pos == size else f"cut short inside a record header at byte {pos:,}"
                 break
@@ -342,15 +387,18 @@ class _Scanner:
                     else:
                         error = "no closing magic after the footer"
                     break
-                self._record(opcode, buf[body_at:end])
+                found = self._record(opcode, buf[body_at:end])
             except (_Damaged, McapError, struct.error, UnicodeDecodeError, ValueError) as e:
+                found = None
                 skipped.bytes += end - pos
                 if opcode == Opcode.CHUNK:
                     self._lost_chunk()
                 skipped.note(pos, f"{Opcode(opcode).name.lower()} skipped: {e}")
             pos = end
+            if found:
+                yield found
         self._end_count()
-        messages = self.found
+        messages = []
         for channel_id, log_time, publish_time, data in self.orphans:
             topic = self.channels.get(channel_id)
             if topic is None:
@@ -359,11 +407,14 @@ class _Scanner:
                 messages.append(RawMessage(topic, log_time, publish_time, data))
         if skipped and error is None:
             error = "damaged: " + "; ".join(skipped.reasons[:3])
-        return Scan(messages, complete and not skipped, error, self.metadata, skipped)
+        if messages:
+            yield messages
+        self.result = Scan([], complete and not skipped, error, self.metadata, skipped)
 
-    def _record(self, opcode: int, body: bytes) -> None:
+    def _record(self, opcode: int, body: bytes) -> list[RawMessage] | None:
+        """Read one sound record: a chunk's messages, or None."""
         if opcode == Opcode.CHUNK:
-            _chunk_messages(_chunk_records(body), self.channels, self.found, self.orphans)
+            return _chunk_messages(_chunk_records(body), self.channels, self.orphans)
         elif opcode == Opcode.MESSAGE_INDEX:
             _, n = _MESSAGE_INDEX.unpack_from(body, 0)
             if n % 16 or _MESSAGE_INDEX.size + n != len(body):
@@ -380,3 +431,4 @@ class _Scanner:
         elif opcode == Opcode.METADATA:
             record = Metadata.read(ReadDataStream(BytesIO(body)))
             self.metadata[record.name] = dict(record.metadata)
+        return None

@@ -12,6 +12,7 @@ process so that the fusion loop never waits for, nor dies with, the disk.
 from __future__ import annotations
 
 import logging
+import math
 import multiprocessing as mp
 import os
 import queue
@@ -19,10 +20,11 @@ import signal
 from collections import Counter
 from dataclasses import dataclass, field
 from functools import cached_property
+from heapq import heappop, heappush
 from operator import index, itemgetter
 from pathlib import Path
 from types import TracebackType
-from typing import Any, BinaryIO, Iterable
+from typing import Any, BinaryIO, Iterable, Iterator
 
 from mcap.writer import CompressionType, Writer
 
@@ -30,9 +32,9 @@ from drivers.samples import Quat, Sample
 
 from .codec import Estimate, decode_sample, dumps, loads, sample_channel, sample_json
 from .frames import BODY_FRAME, TRUTH_OFFSET_NED_M, body_transforms
-from .mcap_scan import NotAnMcapError, RawMessage, Skipped, scan_mcap
+from .mcap_scan import McapStream, NotAnMcapError, RawMessage, Skipped, scan_mcap
 
-__all__ = ["CHANNELS", "LogContents", "McapRecorder", "NotAnMcapError", "RawMessage", "RecorderProcess", "frame_transforms",
+__all__ = ["CHANNELS", "LogContents", "LogOverview", "LogStream", "McapRecorder", "NotAnMcapError", "RawMessage", "RecorderProcess", "frame_transforms",
            "pose_in_frame", "read_log"]
 
 log = logging.getLogger(__name__)
@@ -580,11 +582,16 @@ class LogContents:
         return self.topic("/status")
 
     def describe(self) -> str:
-        if self.complete:
-            return f"{self.records} records, complete"
-        if self.skipped:
-            return f"{self.records} records, DAMAGED: skipped {self.skipped.describe()}; read every sound chunk"
-        return f"{self.records} records, INCOMPLETE ({self.error}); recovered every complete chunk"
+        return _describe(self.records, self.complete, self.skipped, self.error)
+
+
+def _describe(records: int, complete: bool, skipped: Skipped, error: str | None) -> str:
+    """One line on what reading a log recovered (:meth:`LogContents.describe`, :meth:`LogOverview.describe`)."""
+    if complete:
+        return f"{records} records, complete"
+    if skipped:
+        return f"{records} records, DAMAGED: skipped {skipped.describe()}; read every sound chunk"
+    return f"{records} records, INCOMPLETE ({error}); recovered every complete chunk"
 
 
 def _quat_wxyz(pose: dict[str, Any]) -> Quat:
@@ -604,3 +611,74 @@ def read_log(path: str | Path) -> LogContents:
     scan = scan_mcap(path)
     raw = sorted(scan.messages, key=itemgetter(1))  # stable: equal log times keep file order
     return LogContents(raw, scan.complete, scan.error, scan.metadata, scan.skipped)
+
+
+@dataclass(frozen=True)
+class LogOverview:
+    """What a pass over a log found, without its messages: :class:`LogContents` less ``raw``, and the count per topic."""
+
+    complete: bool
+    error: str | None
+    metadata: dict[str, dict[str, str]]
+    skipped: Skipped
+    topics: Counter[str]
+    """Messages per topic."""
+
+    @property
+    def records(self) -> int:
+        return sum(self.topics.values())
+
+    def count(self, topics: Iterable[str]) -> int:
+        """Messages of some topics."""
+        return sum(self.topics[t] for t in topics)
+
+    def describe(self) -> str:
+        return _describe(self.records, self.complete, self.skipped, self.error)
+
+
+class LogStream:
+    """An MCAP log, complete, cut short or damaged, read as :func:`read_log` reads it but as a stream: the same
+    messages in the same order (log time; equal log times in file order), holding about one chunk at a time
+    instead of the whole log, so that a log of any length is read in bounded memory.
+
+    Opening it reads the file once (:attr:`overview`); each :meth:`messages` reads it again. A file written in
+    log-time order (as this recorder writes it) is merged chunk by chunk; one that is not costs memory for the
+    messages that arrive before their time, up to the whole log.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self._stream = McapStream(path)
+        topics: Counter[str] = Counter()
+        firsts = []
+        for group in self._stream:
+            topics.update(m.topic for m in group)
+            firsts.append(min(m.log_time for m in group))
+        scan = self._stream.result
+        assert scan is not None  # set by the iteration that just ended
+        self.overview = LogOverview(scan.complete, scan.error, scan.metadata, scan.skipped, topics)
+        self._later = _later_minima(firsts)
+
+    def messages(self, topics: Iterable[str] | None = None) -> Iterator[RawMessage]:
+        """The messages (of some topics, or all) in log-time order, as ``read_log(path).of(topics)`` lists them.
+
+        A message is let out once no later group of the file holds an earlier one (``_later``); a stable order by
+        (log time, position in the file) among those held back keeps ``sorted``'s order for equal times.
+        """
+        wanted = None if topics is None else set(topics)
+        held: list[tuple[int, int, RawMessage]] = []
+        position = 0
+        for group, later in zip(self._stream, self._later):
+            for m in group:
+                if wanted is None or m.topic in wanted:
+                    heappush(held, (m.log_time, position, m))
+                    position += 1
+            while held and held[0][0] <= later:
+                yield heappop(held)[2]
+
+
+def _later_minima(firsts: list[int]) -> list[int | float]:
+    """For each group, the earliest log time of the groups after it (infinity after the last)."""
+    out: list[int | float] = [math.inf] * len(firsts)
+    for i in range(len(firsts) - 2, -1, -1):
+        out[i] = min(firsts[i + 1], out[i + 1])
+    return out
