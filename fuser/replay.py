@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import errno
 import glob
+import math
 import os
 import sys
 import tempfile
 import time
+from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from dataclasses import replace as with_fields
@@ -38,7 +40,7 @@ from fuser.importers import import_log, is_importable
 from fuser.inputs import InputReport, TlogInputs
 from fuser.mcap_scan import RawMessage, Skipped
 from fuser.progress import progress_bar
-from fuser.record import INPUT_TOPICS, LogContents, McapRecorder, read_log
+from fuser.record import INPUT_TOPICS, LogStream, McapRecorder
 
 if TYPE_CHECKING:
     from fuser.pipeline import Pipeline
@@ -77,33 +79,66 @@ class ReplaySummary:
         return self.samples / self.seconds if self.seconds > 0 else float("inf")
 
 
+class _LogReader:
+    """An MCAP log's inputs and its ``/truth/pose``, read once in log-time order (:meth:`LogStream.messages`) for
+    two readers that go at different paces: the replay takes the inputs one by one, :class:`_CopiedInOrder` the
+    truth up to a time. What one reader reads past is kept for the other; both keep close to the same time, so
+    little is kept."""
+
+    def __init__(self, messages: Iterator[RawMessage]) -> None:
+        self._messages = messages
+        self._inputs: deque[RawMessage] = deque()
+        self._truth: deque[RawMessage] = deque()
+        self._read_to: int | None = None
+        """Log time of the last message read; None before the first."""
+        self._ended = False
+
+    def _read_one(self) -> bool:
+        """Read the next message into its queue; False at the end of the log."""
+        m = next(self._messages, None)
+        if m is None:
+            self._ended = True
+            return False
+        (self._truth if m.topic == "/truth/pose" else self._inputs).append(m)
+        self._read_to = m.log_time
+        return True
+
+    def inputs(self) -> Iterator[RawMessage]:
+        """The input messages in log-time order."""
+        while self._inputs or self._read_one():
+            if self._inputs:
+                yield self._inputs.popleft()
+
+    def truth_until(self, t_ns: int | float) -> Iterator[RawMessage]:
+        """The truth messages not taken yet whose log time is at or before ``t_ns``, in log-time order."""
+        while not self._ended and (self._read_to is None or self._read_to <= t_ns):
+            self._read_one()
+        truth = self._truth
+        while truth and truth[0].log_time <= t_ns:
+            yield truth.popleft()
+
+
 class _CopiedInOrder:
     """Records copied from the log (its ``/truth/pose``), written into the output in log-time order with the rest.
 
-    ``messages`` are in log-time order (:meth:`LogContents.of`); :meth:`until` writes every one not written yet
-    whose log time is at or before ``t_ns``. Called before each record the replay writes, with that record's log
-    time, it puts each copied record where it belongs in time, so the whole file is in log-time order (as the MCAP
-    specification recommends, and as Foxglove and readers that stream it expect) without holding anything back:
-    the messages are the log's, already in memory.
+    :meth:`until` writes every one not written yet whose log time is at or before ``t_ns``. Called before each
+    record the replay writes, with that record's log time, it puts each copied record where it belongs in time,
+    so the whole file is in log-time order (as the MCAP specification recommends, and as Foxglove and readers that
+    stream it expect) without holding anything back: the messages are read from the log as they are needed.
     """
 
-    def __init__(self, recorder: McapRecorder, messages: list[RawMessage]) -> None:
+    def __init__(self, recorder: McapRecorder, log: _LogReader | None) -> None:
         self._recorder = recorder
-        self._messages = messages
-        self._next = 0
+        self._log = log
 
-    def until(self, t_ns: int) -> None:
-        messages, i = self._messages, self._next
-        while i < len(messages) and messages[i].log_time <= t_ns:
-            self._recorder.write_message(*messages[i])
-            i += 1
-        self._next = i
+    def until(self, t_ns: int | float) -> None:
+        if self._log is not None:
+            for m in self._log.truth_until(t_ns):
+                self._recorder.write_message(*m)
 
     def rest(self) -> None:
         """Write what is left (the records after the last estimate)."""
-        for m in self._messages[self._next:]:
-            self._recorder.write_message(*m)
-        self._next = len(self._messages)
+        self.until(math.inf)
 
 
 class _Status:
@@ -163,14 +198,14 @@ def _timed(inputs: Iterable[tuple[Sample, int]], status: _Status) -> Iterator[tu
         yield sample, receive_ns
 
 
-def _read_mcap(log: Path) -> tuple[LogContents, list[RawMessage]]:
-    """The log and its input messages; ReplayError if it has none."""
-    contents = read_log(log)
-    inputs = contents.of(INPUT_TOPICS)
-    if not inputs:
-        what = contents.describe() if contents.records else f"no record could be read ({contents.error})"
+def _open_mcap(log: Path) -> LogStream:
+    """The log, read once to count what it holds; ReplayError if it has no input message."""
+    stream = LogStream(log)
+    overview = stream.overview
+    if not overview.count(INPUT_TOPICS):
+        what = overview.describe() if overview.records else f"no record could be read ({overview.error})"
         raise ReplayError(f"nothing to replay in {log}: no input samples ({what})")
-    return contents, inputs
+    return stream
 
 
 TLOG_PROBE_BYTES = 64 * 1024
@@ -240,16 +275,18 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
     is_tlog = log.suffix.lower() == ".tlog"  # any case: FAT cards and some tools name files in capitals
     if is_tlog:
         _check_tlog(log)
-    contents, messages = (None, None) if is_tlog else _read_mcap(log)
+    stream = None if is_tlog else _open_mcap(log)
+    overview = None if stream is None else stream.overview
+    log_reader = None if stream is None else _LogReader(stream.messages((*INPUT_TOPICS, "/truth/pose")))
     from fuser.pipeline import Pipeline  # noqa: PLC0415 - the model's kernels load only once the log is known to be one
 
     partial = out.with_name(f"{_partial_prefix(out)}{os.getpid()}.partial")
     start = time.monotonic()
     samples = 0
-    provenance = {} if contents is None else contents.metadata.get("bingham_fuser", {})  # reference, source, attribution
+    provenance = {} if overview is None else overview.metadata.get("bingham_fuser", {})  # reference, source, attribution
     try:
         with McapRecorder(partial, metadata={**provenance, "source_log": source_name}) as recorder:
-            copied = _CopiedInOrder(recorder, [] if contents is None else contents.of(["/truth/pose"]))
+            copied = _CopiedInOrder(recorder, log_reader)
 
             def write_estimate(est: Estimate) -> None:
                 copied.until(est.t_ns)
@@ -257,14 +294,16 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
 
             pipeline = Pipeline(config, [], [write_estimate], MAX_CATCH_UP_TICKS)
             status = _Status(recorder, pipeline, copied)
-            tlog = TlogInputs(log, config.link) if messages is None else None
+            tlog = TlogInputs(log, config.link) if log_reader is None else None
             if tlog is not None:
                 pipeline.inputs.append(recorder.write_sample)
                 feed = tlog.feeder(pipeline)
                 inputs: Iterable[tuple[Sample, int]] = _timed(progress_bar(tlog, None, "replay", " samples", progress), status)
             else:
+                assert log_reader is not None and overview is not None  # an MCAP log
                 feed = pipeline.feed
-                inputs = _copied_inputs(progress_bar(messages, len(messages), "replay", " samples", progress), pipeline, recorder, copied, status)
+                messages = progress_bar(log_reader.inputs(), overview.count(INPUT_TOPICS), "replay", " samples", progress)
+                inputs = _copied_inputs(messages, pipeline, recorder, copied, status)
             for sample, receive_ns in inputs:
                 feed(sample, receive_ns)
                 samples += 1
@@ -279,7 +318,7 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
         partial.unlink(missing_ok=True)
         raise
     counters = dict(pipeline.loop.counters) | dict(pipeline.loop.model.counters)
-    incomplete = None if contents is None or contents.complete else contents.error
-    skipped = contents.skipped if contents is not None and contents.skipped else None
+    incomplete = None if overview is None or overview.complete else overview.error
+    skipped = overview.skipped if overview is not None and overview.skipped else None
     return ReplaySummary(samples, pipeline.estimates, time.monotonic() - start, counters, incomplete, skipped, dict(recorder.rejected),
                          None if tlog is None else tlog.report())
