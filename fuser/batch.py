@@ -101,17 +101,14 @@ def _failed(task: LogTask, reason: str) -> LogResult:
 
 def _score(output: str) -> tuple[float | None, str | None]:
     """The RMS total error of ``output``'s estimates and its reference's name, as ``report`` names it (simulator
-    truth, motion capture, EKF2, ...: an autopilot's estimate is not called truth)."""
-    from fuser.record import read_log
-    from fuser.report import errors_of_log, reference_of
+    truth, motion capture, EKF2, ...: an autopilot's estimate is not called truth). The output is read as a stream
+    (:func:`fuser.report.stream_score`), so scoring a long log takes no more memory than a short one."""
+    from fuser.report import stream_score
 
-    contents = read_log(output)
-    scored = errors_of_log(output, contents)
-    if scored is None or len(scored[1].t_ns) == 0:  # no reference, or none within the estimates' time span
+    score = stream_score(output, SCORE_SINCE_S)
+    if score.unscored is not None or score.matched == 0:  # no reference, or none within the estimates' time span
         return None, None
-    err = scored[1]
-    since_s = SCORE_SINCE_S if (err.t_ns[-1] - err.t_ns[0]) * 1e-9 > SCORE_SINCE_S else 0.0
-    return err.rms(since_s)["total"], reference_of(contents).name
+    return score.rms["total"], score.reference.name
 
 
 def run_task(task: LogTask) -> LogResult:

@@ -26,19 +26,20 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 import numpy as np
 from numpy.typing import NDArray
 
 from drivers.euler import euler_from_quaternion
-from drivers.samples import AttitudeSample
-from fuser.codec import Estimate
+from drivers.samples import AttitudeSample, Quat
+from fuser.codec import Estimate, decode_sample, loads
 from fuser.errors import UsageError
 from fuser.evaluate import AttitudeErrors, attitude_errors
 from fuser.frames import orientation_covariance_ned
-from fuser.record import LogContents, read_log
+from fuser.record import LogContents, LogStream, _quat_wxyz, read_log
 
-__all__ = ["Reference", "errors_of_log", "reference_of", "score_log", "write_report"]
+__all__ = ["Reference", "StreamedScore", "errors_of_log", "reference_of", "score_log", "stream_score", "write_report"]
 
 CONVERGENCE_S = 5.0
 """Scores leave out the first seconds, while the filter converges from a uniform start."""
@@ -78,8 +79,13 @@ def _from_words(text: str) -> tuple[str, bool] | None:
 
 def reference_of(contents: LogContents) -> Reference:
     """Name the reference of a log (see the module docstring)."""
-    meta = contents.metadata.get("bingham_fuser", {})
-    if not any(m.topic == "/truth/pose" for m in contents.raw):
+    return _reference(contents.metadata, any(m.topic == "/truth/pose" for m in contents.raw))
+
+
+def _reference(metadata: dict[str, dict[str, str]], has_truth: bool) -> Reference:
+    """Name the reference of a log with this metadata, with or without ``/truth/pose``."""
+    meta = metadata.get("bingham_fuser", {})
+    if not has_truth:
         return Reference("autopilot attitude", "the autopilot's own attitude messages (no /truth/pose)", False)
     if "reference" in meta:
         named = _from_words(meta["reference"])
@@ -98,6 +104,11 @@ def _unscored(path: str | Path, contents: LogContents) -> str:
     for e in contents.estimates():
         estimates += 1
         timed += e.sensor_t_ns is not None
+    return _why_unscored(path, estimates, timed)
+
+
+def _why_unscored(path: str | Path, estimates: int, timed: int) -> str:
+    """Why a log with ``estimates`` estimates, ``timed`` of them with an IMU time, cannot be scored."""
     if not estimates:
         return (f"{path} holds no estimates (an imported or input-only log): fuse it first, "
                 f"'bingham-fuser replay {path} -o fused.mcap', then report fused.mcap")
@@ -136,7 +147,13 @@ def _circular(contents: LogContents, ref: Reference) -> str | None:
     if ref.ground_truth:
         return None
     taken = sum(isinstance(s, AttitudeSample) for s, _ in contents.inputs())
-    counters = next((e.counters for e in reversed(contents.estimates())), {})
+    return _circular_note(ref, taken, next((e.counters for e in reversed(contents.estimates())), {}))
+
+
+def _circular_note(ref: Reference, taken: int, counters: dict[str, int]) -> str | None:
+    """:func:`_circular`'s note, from the attitude samples the log holds and the last estimate's ``counters``."""
+    if ref.ground_truth:
+        return None
     fused = taken - sum(v for k, v in counters.items() if k == "attitude_unused" or k.startswith("attitude_gated"))
     if fused <= 0:
         return None
@@ -150,8 +167,8 @@ def _window(err: AttitudeErrors, since_s: float) -> float:
     return since_s if (err.t_ns[-1] - err.t_ns[0]) * 1e-9 > since_s else 0.0
 
 
-def _score_lines(ref: Reference, err: AttitudeErrors, since_s: float) -> list[str]:
-    rms = err.rms(since_s)
+def _score_lines(ref: Reference, rms: dict[str, float], since_s: float) -> list[str]:
+    """The score's two lines: the RMS errors (:meth:`AttitudeErrors.rms`) after ``since_s``."""
     window = f"after the first {since_s:g} s" if since_s > 0 else "over the whole flight, convergence included"
     return [
         f"error against {ref.name} {window} (RMS, degrees):",
@@ -161,17 +178,150 @@ def _score_lines(ref: Reference, err: AttitudeErrors, since_s: float) -> list[st
 
 
 def score_log(path: str | Path, since_s: float = CONVERGENCE_S) -> list[str]:
-    """Lines of a summary table: RMS errors after the first ``since_s`` seconds (convergence)."""
-    contents = read_log(path)
-    result = errors_of_log(path, contents)
-    if result is None:
-        return [f"{path}: {_unscored(path, contents)}"]
-    err = result[1]
-    ref = reference_of(contents)
-    if err.t_ns.size == 0:
-        return [f"{path}: no estimate within the time span of the {ref.name} to score against"]
-    circular = _circular(contents, ref)
-    return _score_lines(ref, err, _window(err, since_s)) + ([circular] if circular else [])
+    """Lines of a summary table: RMS errors after the first ``since_s`` seconds (convergence).
+
+    The log is read as a stream (:func:`stream_score`): the memory taken does not grow with its estimates."""
+    score = stream_score(path, since_s)
+    if score.unscored is not None:
+        return [f"{path}: {score.unscored}"]
+    if score.matched == 0:
+        return [f"{path}: no estimate within the time span of the {score.reference.name} to score against"]
+    return _score_lines(score.reference, score.rms, score.since_s) + ([score.circular] if score.circular else [])
+
+
+@dataclass(frozen=True)
+class StreamedScore:
+    """What :func:`score_log` prints, as :func:`errors_of_log` and :meth:`AttitudeErrors.rms` after :func:`_window`
+    give it, computed in one pass over the estimates (:func:`stream_score`)."""
+
+    reference: Reference
+    unscored: str | None
+    """Why the log has no score (:func:`_why_unscored`), or None."""
+    matched: int
+    """Estimates inside the reference's time span: those scored."""
+    since_s: float
+    """The convergence left out: the ``since_s`` asked for, or 0 for a flight too short to leave it out."""
+    rms: dict[str, float]
+    """RMS ``total``, ``tilt``, ``heading`` and ``uncertainty``, degrees (empty when nothing was scored)."""
+    circular: str | None = None
+    """:func:`_circular`'s note, or None."""
+
+
+ESTIMATES_PER_BLOCK = 65_536
+"""Estimates :func:`stream_score` compares with the reference at a time (a few MB of arrays)."""
+
+
+class _SquareSums:
+    """Sums of the squared errors of :class:`AttitudeErrors` blocks, over every estimate and over those at least
+    ``since_s`` after the first: both RMS are at hand when the end of the log tells which one is wanted."""
+
+    NAMES = ("total", "tilt", "heading", "uncertainty")
+
+    def __init__(self, since_s: float) -> None:
+        self.since_ns = since_s * 1e9
+        self.first_ns: int | None = None
+        self.last_ns: int | None = None
+        self.count = {"all": 0, "since": 0}
+        self.sums = {window: dict.fromkeys(self.NAMES, 0.0) for window in self.count}
+
+    def add(self, err: AttitudeErrors) -> None:
+        """Add one block's errors (its estimates in log-time order, after the blocks added before)."""
+        if err.t_ns.size == 0:
+            return
+        if self.first_ns is None:
+            self.first_ns = int(err.t_ns[0])
+        self.last_ns = int(err.t_ns[-1])
+        since = (err.t_ns - self.first_ns) >= self.since_ns
+        self.count["all"] += err.t_ns.size
+        self.count["since"] += int(np.count_nonzero(since))
+        for name, values in zip(self.NAMES, (err.total_deg, err.tilt_deg, err.heading_deg, err.uncertainty_deg)):
+            squares = values**2
+            self.sums["all"][name] += float(np.sum(squares))
+            self.sums["since"][name] += float(np.sum(squares[since]))
+
+    def rms(self, window: str) -> dict[str, float]:
+        """The RMS of each error over ``window`` (``all`` or ``since``)."""
+        n = self.count[window]
+        return {name: math.sqrt(total / n) if n else math.nan for name, total in self.sums[window].items()}
+
+
+def stream_score(path: str | Path, since_s: float = CONVERGENCE_S) -> StreamedScore:
+    """The score :func:`score_log` prints, reading the log as a stream (:class:`~fuser.record.LogStream`): the
+    reference (times and quaternions, a few per second) is kept, the estimates are compared with it
+    :data:`ESTIMATES_PER_BLOCK` at a time, and only their squared errors are summed."""
+    log = LogStream(path)
+    topics = log.overview.topics
+    ref = _reference(log.overview.metadata, topics["/truth/pose"] > 0)
+    reference = _reference_samples(log)
+    sums = _SquareSums(since_s)
+    estimates = _Estimates()
+    for t, q, unc in estimates.blocks(log):
+        if reference is not None:
+            sums.add(attitude_errors(t, q, unc, *reference))
+    if not estimates.timed or reference is None:
+        return StreamedScore(ref, _why_unscored(path, estimates.count, estimates.timed), 0, since_s, {})
+    if sums.first_ns is None or sums.last_ns is None:
+        return StreamedScore(ref, None, 0, since_s, {})
+    window = since_s if (sums.last_ns - sums.first_ns) * 1e-9 > since_s else 0.0  # as _window
+    circular = _circular_note(ref, topics["/input/attitude"], estimates.last_counters)
+    return StreamedScore(ref, None, sums.count["all"], window, sums.rms("since" if window > 0 else "all"), circular)
+
+
+def _reference_samples(log: LogStream) -> tuple[NDArray, NDArray] | None:
+    """(times, quaternions) of what :func:`errors_of_log` compares with: ``/truth/pose`` at its publish time, else
+    the autopilot's attitude inputs (None if fewer than two)."""
+    times: list[int] = []
+    quats: list[Quat] = []
+    if log.overview.topics["/truth/pose"]:
+        for m in log.messages(["/truth/pose"]):
+            times.append(m.publish_time)
+            quats.append(_quat_wxyz(loads(m.data)))
+    else:
+        for m in log.messages(["/input/attitude"]):
+            sample, _ = decode_sample(m.topic, loads(m.data))
+            if isinstance(sample, AttitudeSample):
+                times.append(sample.t_ns)
+                quats.append(sample.q_wxyz)
+        if len(times) < 2:
+            return None
+    return np.array(times, dtype=np.int64), np.array(quats, dtype=float)
+
+
+class _Estimates:
+    """The ``/estimate`` messages of a log read in blocks (:meth:`blocks`), and what is counted on the way."""
+
+    def __init__(self) -> None:
+        self.count = 0
+        self.timed = 0
+        """Estimates with an IMU time (``sensor_t_ns``)."""
+        self.last_counters: dict[str, int] = {}
+        """The counters of the last estimate in log-time order."""
+
+    def blocks(self, log: LogStream) -> Iterator[tuple[NDArray, NDArray, NDArray]]:
+        """The estimates with an IMU time, in log-time order, as (IMU times, quaternions, uncertainties) arrays of
+        at most :data:`ESTIMATES_PER_BLOCK`."""
+        t: list[int] = []
+        q: list[list[float]] = []
+        unc: list[float] = []
+        for m in log.messages(["/estimate"]):
+            d = loads(m.data)
+            self.count += 1
+            self.last_counters = d.get("counters", {})
+            if d.get("sensor_t_ns") is None:
+                continue
+            self.timed += 1
+            t.append(d["sensor_t_ns"])
+            q.append(d["q_wxyz"])
+            unc.append(float(d["uncertainty_deg"]))
+            if len(t) == ESTIMATES_PER_BLOCK:
+                yield _arrays(t, q, unc)
+                t, q, unc = [], [], []
+        if t:
+            yield _arrays(t, q, unc)
+
+
+def _arrays(t: list[int], q: list[list[float]], unc: list[float]) -> tuple[NDArray, NDArray, NDArray]:
+    return np.array(t, dtype=np.int64), np.array(q, dtype=float), np.array(unc, dtype=float)
 
 
 def _euler_deg(q: NDArray) -> NDArray:
@@ -301,7 +451,7 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
     plt.close(fig)
 
     circular = _circular(contents, ref)
-    lines = _score_lines(ref, err, since_s) + ([circular] if circular else [])
+    lines = _score_lines(ref, rms, since_s) + ([circular] if circular else [])
     (out_dir / "summary.md").write_text(_summary(Path(path).name, ref, err, rms, since_s, final)
                                         + (f"\n**Note:** {circular.removeprefix('note: ')}.\n" if circular else ""))
     return lines + [f"report: {out_dir / 'summary.md'}, attitude.png, error.png, counters.png"]
