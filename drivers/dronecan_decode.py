@@ -23,6 +23,7 @@ from __future__ import annotations
 import binascii
 import logging
 import math
+from collections import Counter
 from typing import Any, Callable
 
 import can
@@ -125,6 +126,9 @@ class _TimeBase:
 class DroneCanDecoder(Decoder):
     """Feed CAN frames one by one (``feed``); returns the samples of each completed transfer."""
 
+    imu_types = (RAW_IMU,)
+    """The data types that carry IMU samples (keys of ``received`` and ``used``)."""
+
     def __init__(self, **decoder_options: Any) -> None:
         super().__init__("dronecan", log, **decoder_options)
         self._handlers: dict[int, tuple[Any, Any, Callable[[Any, int, float], Sample]]] = {}
@@ -138,6 +142,10 @@ class DroneCanDecoder(Decoder):
         """Per node id (at most 127), its time base, once a timestamped transfer of it has been accepted."""
         self._on_receive_clock: set[Stream] = set()
         """Streams that started before their node's time base was known (at most ``max_streams``)."""
+        self.received: Counter[str] = Counter()
+        """Valid transfers decoded, by data type name (used or not), as ``MavlinkDecoder.received``."""
+        self.used: Counter[str] = Counter()
+        """Transfers that became samples, by data type name."""
 
     def feed(self, msg: can.Message) -> list[Sample]:
         """Samples completed by this frame (empty for a frame in the middle of a transfer)."""
@@ -165,12 +173,14 @@ class DroneCanDecoder(Decoder):
         except Exception as exc:  # noqa: BLE001 - dronecan raises many kinds on malformed payloads
             self._note("bad_payload", f"{dtype.full_name}: {exc!r}")
             return []
+        self.received[dtype.full_name] += 1
         try:
             sample = convert(value, can_id & _NODE_ID, msg.timestamp)
         except Rejected as rejected:
             self._note(rejected.reason, f"{dtype.full_name}: {rejected.detail}")
             return []
         self.stats["accepted"] += 1
+        self.used[dtype.full_name] += 1
         return [sample]
 
     def _not_decoded(self, can_id: int) -> None:

@@ -98,6 +98,9 @@ class MavlinkDecoder(Decoder):
     samples; ``stats`` counts ``accepted`` and every reason a frame or message was not used.
     """
 
+    imu_types = IMU_MESSAGES
+    """The message types that carry IMU samples (keys of ``received`` and ``used``)."""
+
     def __init__(
         self,
         link: LinkSettings | None = None,

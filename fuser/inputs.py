@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterator, Mapping
 
 from drivers.link import LinkSettings
-from drivers.mavlink_decode import IMU_MESSAGES, MavlinkDecoder
+from drivers.mavlink_decode import MavlinkDecoder
 from drivers.samples import ImuSample, Sample
 from drivers.sim import Flight, dronecan_stream, mavlink_stream
 from drivers.tlog import TlogSource
@@ -40,13 +40,13 @@ class InputReport:
 
     ``imu_decodable`` counts the valid IMU messages on the input (every sender, as pymavlink alone
     decodes them); ``imu_used`` the IMU samples the loop took in time, or for a live source the
-    decoder's IMU samples accepted. Both are ``None`` where the decoder does not count its messages
-    by type (DroneCAN): then nothing is said of the IMU share. ``stats`` is the decoder's (and the log reader's).
+    decoder's IMU samples accepted (each decoder counts its own IMU types: MAVLink's messages, DroneCAN's
+    RawIMU). ``stats`` is the decoder's (and the log reader's).
     """
 
     name: str
-    imu_decodable: int | None
-    imu_used: int | None
+    imu_decodable: int
+    imu_used: int
     stats: Mapping[str, int]
 
     @property
@@ -55,11 +55,8 @@ class InputReport:
 
     def lines(self) -> list[str]:
         """One line of use, one of refusals by reason (what ``replay`` and ``run`` print at the end)."""
-        if self.imu_decodable is None or self.imu_used is None:
-            used = f"{self.name}: IMU messages not counted (its decoder does not count messages by type); "
-        else:
-            share = f" ({100 * self.imu_used / self.imu_decodable:.1f}%)" if self.imu_decodable else ""
-            used = f"{self.name}: {self.imu_used:,} of {self.imu_decodable:,} IMU messages used{share}; "
+        share = f" ({100 * self.imu_used / self.imu_decodable:.1f}%)" if self.imu_decodable else ""
+        used = f"{self.name}: {self.imu_used:,} of {self.imu_decodable:,} IMU messages used{share}; "
         used += f"{self.stats.get('accepted', 0):,} samples accepted, {self.stats.get('ignored', 0):,} messages ignored"
         counted = [f"{k}={self.stats[k]:,}" for k in NOT_REFUSALS if k not in ("accepted", "ignored") and self.stats.get(k)]
         used += f"; also counted: {', '.join(counted)}" if counted else ""
@@ -68,14 +65,15 @@ class InputReport:
 
     def warning(self) -> str | None:
         """A warning when less than 90% of the decodable IMU messages reached the loop."""
-        if not self.imu_decodable or self.imu_used is None or self.imu_used >= USED_WARNING_FRACTION * self.imu_decodable:
+        if not self.imu_decodable or self.imu_used >= USED_WARNING_FRACTION * self.imu_decodable:
             return None
         return (f"warning: {self.name}: only {self.imu_used:,} of {self.imu_decodable:,} decodable IMU messages "
                 f"({100 * self.imu_used / self.imu_decodable:.0f}%) reached the loop; see 'not used' for why")
 
 
-def _imu_decodable(decoder: MavlinkDecoder) -> int:
-    return sum(decoder.received[m] for m in IMU_MESSAGES)
+def _imu_decodable(decoder: MavlinkDecoder | Any) -> int:
+    """The decoder's valid IMU messages (or DroneCAN transfers), every sender's, used or not."""
+    return sum(decoder.received[m] for m in decoder.imu_types)
 
 
 class TlogInputs:
@@ -116,15 +114,10 @@ class TlogInputs:
 
 
 def source_report(name: str, source: Any) -> InputReport:
-    """The decoder's view of a live source (IMU samples accepted, not what the loop took).
-
-    Only the MAVLink decoder counts its messages by type: for another (DroneCAN) the IMU counts are
-    ``None``, and the report says they were not counted rather than "0 of 0".
-    """
+    """The decoder's view of a live source (IMU samples accepted, not what the loop took): its IMU messages (DroneCAN
+    RawIMU transfers) decoded and used; under 90 % used, the report warns (it said "0 of 0" for a CAN bus)."""
     decoder = source.decoder
-    if not isinstance(decoder, MavlinkDecoder):
-        return InputReport(name, None, None, dict(source.stats))
-    return InputReport(name, _imu_decodable(decoder), sum(decoder.used[m] for m in IMU_MESSAGES), dict(source.stats))
+    return InputReport(name, _imu_decodable(decoder), sum(decoder.used[m] for m in decoder.imu_types), dict(source.stats))
 
 
 def sim_ticks(flight: Flight, transport: str = "mavlink") -> Iterator[tuple[int, object, list[Sample]]]:

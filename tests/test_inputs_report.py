@@ -2,8 +2,8 @@
 refusals, and nothing else under "not used".
 
 * ``run --can`` printed "can:...: 0 of 0 IMU messages used" whatever the bus carried: the IMU messages were counted
-  only for a MAVLink decoder. The DroneCAN decoder keeps no count by message type, so the line must say the IMU
-  messages were not counted rather than give a count of zero.
+  only for a MAVLink decoder, so a bus whose IMU transfers were refused was never warned about. The DroneCAN
+  decoder now counts its transfers by data type too, and the line counts its RawIMU transfers.
 * Counts the drivers keep that are not refusals (drivers/README.md, "Counted but not refusals") were listed as "not
   used": a bus's service and standard-id frames (``not_dronecan_message``), a sender's confirmed reboot or clock jump,
   a .tlog's ground-station clock step, the frames ``lost`` in the sequence numbers.
@@ -41,11 +41,15 @@ def _can_source(decoder: DroneCanDecoder) -> SimpleNamespace:
     return SimpleNamespace(decoder=decoder, stats=decoder.stats)
 
 
-def test_can_imu_messages_are_not_reported_as_zero_of_zero():
+def _feed_raw_imu(decoder: DroneCanDecoder, count: int, gyro: tuple, first: int) -> None:
+    for k in range(first, first + count):
+        for f in frames(raw_imu(1.0 + 0.005 * k, gyro, (0, 0, -9.8)), 10, k % 32, 1.0 + 0.005 * k):
+            decoder.feed(f)
+
+
+def test_can_imu_transfers_are_counted_as_mavlink_messages_are():
     decoder = DroneCanDecoder()
-    for k in range(50):
-        for f in frames(raw_imu(1.0 + 0.005 * k, (0.1, 0, 0), (0, 0, -9.8)), 10, k % 32, 1.0 + 0.005 * k):
-            assert len(decoder.feed(f)) == (1 if f.data[-1] & 0x40 else 0)  # the transfer's last frame gives the sample
+    _feed_raw_imu(decoder, 50, (0.1, 0, 0), 0)
     for k in range(3):  # a node's status (a message the drivers do not use) and a service request on the bus
         for f in frames(node_status(1.0 + k), 10, k, 1.0 + k):
             decoder.feed(f)
@@ -53,11 +57,20 @@ def test_can_imu_messages_are_not_reported_as_zero_of_zero():
     assert decoder.stats["accepted"] == 50
     report = source_report("can:virtual:bus", _can_source(decoder))
     used, not_used = report.lines()
-    assert "0 of 0" not in used
-    assert used.startswith("can:virtual:bus: IMU messages not counted")
-    assert "50 samples accepted" in used
+    assert used.startswith("can:virtual:bus: 50 of 50 IMU messages used (100.0%)"), used
     assert not_used == "can:virtual:bus: not used: nothing"  # service requests and NodeStatus are no refusals
     assert report.warning() is None
+
+
+def test_a_bus_whose_imu_transfers_are_refused_is_warned_about():
+    """50 RawIMU transfers decoded, 20 of them out of the gyro's range: 30 of 50 used, a warning (before: "0 of 0")."""
+    decoder = DroneCanDecoder()
+    _feed_raw_imu(decoder, 30, (0.1, 0, 0), 0)
+    _feed_raw_imu(decoder, 20, (100.0, 0, 0), 30)
+    report = source_report("can:virtual:bus", _can_source(decoder))
+    assert report.lines()[0].startswith("can:virtual:bus: 30 of 50 IMU messages used (60.0%)"), report.lines()
+    assert "gyro_out_of_range=20" in report.lines()[1]
+    assert report.warning() is not None and "30 of 50" in report.warning()
 
 
 def test_mavlink_heartbeats_are_not_refusals():
