@@ -7,7 +7,9 @@ replayed), the estimates, the status once a second (as ``sim`` records it), and 
 log's truth if it had any. Inputs and
 truth from an MCAP log are copied as they are stored (JSON bytes), not
 decoded and encoded again. Every record goes into the output in log-time order,
-the copied truth between the estimates and inputs of its time.
+the copied truth between the estimates and inputs of its time. An MCAP log is read
+as a stream (:class:`~fuser.record.LogStream`), not whole, so a replay's memory
+does not grow with the log's length.
 
 A damaged MCAP replays every chunk that can be read (``ReplaySummary.skipped``
 says what could not). A file that is not a log raises
