@@ -101,14 +101,15 @@ def _failed(task: LogTask, reason: str) -> LogResult:
 
 def _score(output: str) -> tuple[float | None, str | None]:
     """The RMS total error of ``output``'s estimates and its reference's name, as ``report`` names it (simulator
-    truth, motion capture, EKF2, ...: an autopilot's estimate is not called truth). The output is read as a stream
+    truth, motion capture, EKF2, ...: an autopilot's estimate is not called truth), marked ``(circular)`` where the
+    fuser fused that autopilot's attitude (``replay`` prints why). The output is read as a stream
     (:func:`fuser.report.stream_score`), so scoring a long log takes no more memory than a short one."""
     from fuser.report import stream_score
 
     score = stream_score(output, SCORE_SINCE_S)
     if score.unscored is not None or score.matched == 0:  # no reference, or none within the estimates' time span
         return None, None
-    return score.rms["total"], score.reference.name
+    return score.rms["total"], score.reference.name + (" (circular)" if score.circular else "")
 
 
 def run_task(task: LogTask) -> LogResult:

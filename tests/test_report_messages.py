@@ -17,6 +17,7 @@ from drivers.samples import AttitudeSample, SourceId
 from fuser.codec import Estimate
 from fuser.errors import UsageError
 from fuser.record import McapRecorder
+from fuser import batch
 from fuser.report import score_log, write_report
 
 SRC = SourceId("mavlink", 1, 1, 0)
@@ -80,3 +81,10 @@ def test_the_report_summary_says_it_too(tmp_path):
     lines = write_report(_log(tmp_path / "one10.mcap", 0), tmp_path / "out")
     assert "circular" in " ".join(lines)
     assert "circular" in (tmp_path / "out" / "summary.md").read_text()
+
+
+@pytest.mark.parametrize("unused, circular", [(None, True), (N, False)], ids=["attitude fused", "attitude unused"])
+def test_the_batch_table_marks_a_circular_score_too(tmp_path, unused, circular):
+    """The batch's error column said "2.08 vs EKF3" for a log whose EKF3 attitude the fuser had fused."""
+    error_deg, reference = batch._score(str(_log(tmp_path / "one10.mcap", unused)))
+    assert error_deg is not None and reference == ("EKF3 (circular)" if circular else "EKF3")
