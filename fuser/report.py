@@ -164,7 +164,12 @@ def _circular_note(ref: Reference, taken: int, counters: dict[str, int]) -> str 
 
 def _window(err: AttitudeErrors, since_s: float) -> float:
     """``since_s``, or 0 when the flight is too short to leave out the convergence."""
-    return since_s if (err.t_ns[-1] - err.t_ns[0]) * 1e-9 > since_s else 0.0
+    return _span_window(int(err.t_ns[0]), int(err.t_ns[-1]), since_s)
+
+
+def _span_window(first_ns: int, last_ns: int, since_s: float) -> float:
+    """:func:`_window` for scored estimates from ``first_ns`` to ``last_ns`` (what :func:`stream_score` keeps)."""
+    return since_s if (last_ns - first_ns) * 1e-9 > since_s else 0.0
 
 
 def _score_lines(ref: Reference, rms: dict[str, float], since_s: float) -> list[str]:
@@ -262,7 +267,7 @@ def stream_score(path: str | Path, since_s: float = CONVERGENCE_S) -> StreamedSc
         return StreamedScore(ref, _why_unscored(path, estimates.count, estimates.timed), 0, since_s, {})
     if sums.first_ns is None or sums.last_ns is None:
         return StreamedScore(ref, None, 0, since_s, {})
-    window = since_s if (sums.last_ns - sums.first_ns) * 1e-9 > since_s else 0.0  # as _window
+    window = _span_window(sums.first_ns, sums.last_ns, since_s)
     circular = _circular_note(ref, topics["/input/attitude"], estimates.last_counters)
     return StreamedScore(ref, None, sums.count["all"], window, sums.rms("since" if window > 0 else "all"), circular)
 

@@ -81,8 +81,9 @@ be low: in multipath, or from a receiver that reports none at all
 (``gnss.velocity_noise_m_s`` then stands in). Fused as claimed, white
 velocity noise of 0.25 m/s under a claim of 0.1 took the simulated
 multirotor 2.6-8.1 deg off while it reported 3.4-4.2 (eight noise seeds;
-with the check 0.9-1.9 deg on six, tests/test_fuser_gnss_noise.py). PX4's EKF2 and ArduPilot's EKF3 only floor the claim
-(``EKF2_GPS_V_NOISE``, ``EK3_VELNE_M_NSE``); here the fixes themselves are
+with the check 0.9-1.9 deg on six, tests/test_fuser_gnss_noise.py). PX4's
+EKF2 and ArduPilot's EKF3 only floor the claim (``EKF2_GPS_V_NOISE``,
+``EK3_VELNE_M_NSE``); here the fixes themselves are
 checked, as covariance matching does (R. K. Mehra, "On the identification
 of variances and adaptive Kalman filtering", IEEE TAC 15(2), 1970): each
 pair's velocity residual against the accelerometer over the same interval,
