@@ -81,6 +81,17 @@ def test_a_state_that_agrees_with_gnss_is_kept_and_checked_once():
     assert not alone.restart and not alone_state.gnss_checked
 
 
+def test_until_converged_every_gnss_reading_checks_the_state():
+    """Checked once and not yet converged (the first pair's acceleration, the noisiest, agreed within the gate): the
+    next GNSS reading still checks the state and starts again on the bank's vertical. A raw reading whose norm
+    underflows (1e-171 m/s^2: no direction) shows no disagreement, and does not divide by its norm (a
+    ZeroDivisionError the any-input property test found when the check first ran on every reading)."""
+    state = part("gravity", tilt_known=True, converged=False, gnss_checked=True)
+    assert update_gravity(P.accel, P.updates, state, TICK, LIFT, 3.0, LEVEL, 0.01, True, *GNSS).restart
+    state = part("gravity", tilt_known=True, converged=False, gnss_checked=True)
+    assert not update_gravity(P.accel, P.updates, state, TICK, (1e-171, 0.0, 0.0), 3.0, LEVEL, 0.01, True, *GNSS).restart
+
+
 def test_the_dip_gate_does_not_depend_on_the_estimate():
     """The truth's field in the body, with the specific force measured along the body's z and known (GNSS) to be
     ``g e_z - a``: the dip gate passes whatever the estimate (a heading 120 deg off and a tilt 40 deg off included).
