@@ -101,10 +101,10 @@ def test_the_dip_gate_does_not_depend_on_the_estimate():
     wrong = quat.multiply(quat.from_axis_angle([0.0, 0.0, 1.0], math.radians(120.0)), quat.from_axis_angle([0.0, 1.0, 0.0], math.radians(40.0)))
     aided = part("gravity", tilt_known=True, converged=True, measured_body=np.array([0.0, 0.0, 1.0]),
                  measured_world=GNSS_WORLD / np.linalg.norm(GNSS_WORLD))
-    h = update_heading(P.mag, P.updates, reference, part("heading"), aided, TICK, tuple(mag_body), tuple(wrong), 0.05)
+    h = update_heading(P.mag, P.updates, reference, part("heading"), aided, TICK, tuple(mag_body), tuple(wrong), 0.05, 6.0)
     assert update_diagnostic(h.diagnostic).reason != "dip", update_diagnostic(h.diagnostic)
     plain = part("gravity", tilt_known=True, converged=True, measured_body=np.array([0.0, 0.0, 1.0]), measured_world=DOWN_NED)
-    h = update_heading(P.mag, P.updates, reference, part("heading"), plain, TICK, tuple(mag_body), tuple(TRUTH), 0.05)
+    h = update_heading(P.mag, P.updates, reference, part("heading"), plain, TICK, tuple(mag_body), tuple(TRUTH), 0.05, 6.0)
     assert update_diagnostic(h.diagnostic).reason == "dip"
     field = np.array(FIELD_NED) / np.linalg.norm(FIELD_NED)
     lift = quat.to_matrix(TRUTH) @ np.array([0.0, 0.0, 1.0])

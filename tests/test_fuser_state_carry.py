@@ -104,7 +104,7 @@ def test_the_field_sets_these_checks_cover():
                                     "has_raw_mean", "raw_mean_m_s2", "raw_s", "measured_body", "gnss_checked", "measured_world")
     assert UNAIDED_FIELDS.names == ("excess_m2_s4", "has_norm_mean", "norm_mean_m_s2", "norm_mean_s", "absorbed_rad")
     assert ATTITUDE_SOURCE.names == ("gated_s", "has_last_fused_ns", "last_fused_ns")
-    assert HEADING.names == ("gated_s", "has_last_reading_ns", "last_reading_ns", "has_last_fused_ns", "last_fused_ns")
+    assert HEADING.names == ("gated_s", "has_last_reading_ns", "last_reading_ns", "has_last_fused_ns", "last_fused_ns", "vector_until_ns")
     assert REST.names == ("has_lp", "gyro_lp_rad_s", "accel_lp_m_s2", "still_s", "at_rest")
     assert BIAS.names == ("estimate_rad_s", "covariance_rad2_s2", "has_lp", "rotation_lp", "rotated_lp_rad_s", "tilt_aided", "tilt_settled_s")
     assert MODEL_ERROR.names == ("rate_sq",)
@@ -214,7 +214,7 @@ def test_the_heading_update_changes_only_its_gate(yaw_rad, gated):
     state = _state(heading=dict(gated_s=0.25), gravity=level)
     current = tuple(quat.from_rotvec([0.0, 0.0, yaw_rad]))
     reading = _changes(state, lambda: heading.update_heading(P.mag, P.updates, FIELD.copy(), state.heading, state.gravity, TICK,
-                                                             tuple(FIELD), current, math.radians(2.0)),
+                                                             tuple(FIELD), current, math.radians(2.0), 6.0),
                        "heading", changed={"gated_s"})
     assert reading.fused != gated
     assert state.heading.gated_s == (pytest.approx(0.25 + TICK.dt_s) if gated else 0.0)

@@ -264,7 +264,8 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
             since = dt if not h.has_last_reading_ns else (tick_ns - h.last_reading_ns) * 1e-9
             h.has_last_reading_ns, h.last_reading_ns = True, tick_ns
             sigma = heading.heading_sigma_rad(p.mag, p.bias, p.updates, s.gravity.converged, context, bias.variance_rad2_s2(s.bias), since)
-            heading_reading = heading.update_heading(p.mag, p.updates, field_ned_gauss, h, s.gravity, context, mag, mode(M), sigma)
+            heading_reading = heading.update_heading(p.mag, p.updates, field_ned_gauss, h, s.gravity, context, mag, mode(M), sigma,
+                                                      bias.SETTLE_TIME_CONSTANTS * p.accel.lowpass_s)
             n_diag = emit(diagnostics, n_diag, heading_reading.diagnostic)
             if heading_reading.fused:
                 exponent += heading_reading.exponent

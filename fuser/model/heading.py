@@ -24,6 +24,19 @@ Started in a 30-deg turn of the JSBSim Cessna, the estimate was 30-45 deg off
 in tilt and 100-120 deg in heading for 15 s, reporting 5; with this and the
 restart, 1.6 and 4.6 deg after 0.5 s.
 
+The field stays a whole vector for ``settle_s`` after such a fast start has
+converged (:func:`fuser.model.fusion.tick`: ``SETTLE_TIME_CONSTANTS`` of
+:mod:`fuser.model.bias` times ``accel.lowpass_s``, the time the aided
+correction's low-pass takes to settle, 6 s by default). Converged in a
+turn, the state knows least the rotation about the aided vector (the
+lift's direction, 30 deg off down), not about down: a yaw-only reading then
+moves it about that axis, which tilts it, and the heading it measures
+through that tilt (``tan(dip)`` per degree) moves along: started at 22, 25,
+34 or 40 s into the Cessna's turn the estimate ran 7-12 deg off (largest
+15-29) reporting 3.5-5.4 and stayed there for tens of seconds. The whole
+field observes the rotation about the aided vector too; once settled, the
+yaw-only reading holds the state as in any flight.
+
 Compiled (numba) for the tick (:func:`fuser.model.fusion.tick`): the heading's
 memory is the state record's ``heading`` part (:data:`fuser.model.state.HEADING`),
 changed in place; the reading is a :class:`fuser.model.tick.HeadingReading`.
@@ -83,11 +96,16 @@ def _gated(reason: int) -> HeadingReading:
 
 @njit(cache=True, nogil=True)
 def update_heading(params_mag: np.record, params_updates: np.record, field_ned_gauss: np.ndarray, heading: np.record,
-                   gravity: np.record, tick: TickContext, mag_body_gauss: tuple, current_q: tuple, sigma_rad: float) -> HeadingReading:
+                   gravity: np.record, tick: TickContext, mag_body_gauss: tuple, current_q: tuple, sigma_rad: float,
+                   settle_s: float) -> HeadingReading:
     """The heading update of one tick from the tick's mean field in the state's body frame, against the
     current estimate ``current_q`` and the measured down in ``gravity`` (the state's ``gravity`` part); the reference
     field ``field_ned_gauss`` (:mod:`fuser.model.field`). ``heading`` is the state's ``heading`` part, this reading's
-    time already noted: its ``gated_s`` is changed in place once the innovation gate has run."""
+    time already noted: its ``gated_s`` and ``vector_until_ns`` are changed in place (the field a whole vector for
+    ``settle_s`` after a fast start with GNSS, module docstring)."""
+    gnss_fast_start = not gravity.converged and gravity.gnss_checked
+    if gnss_fast_start:  # the whole field until the fast start has settled (module docstring)
+        heading.vector_until_ns = heading.last_reading_ns + round(settle_s * 1e9)
     if not gravity.tilt_known:
         return _gated(BEFORE_TILT)
     # the reference field's coefficients (three floats: computed each reading, cheaper than keeping them)
@@ -115,7 +133,7 @@ def update_heading(params_mag: np.record, params_updates: np.record, field_ned_g
     heading.gated_s = verdict.gated_s
     if verdict.outcome == GATED:
         return HeadingReading(False, np.zeros((4, 4)), diagnostic)
-    if not gravity.converged and gravity.gnss_checked:  # a fast start with GNSS: the whole field as a vector (module docstring)
+    if gnss_fast_start or heading.last_reading_ns < heading.vector_until_ns:  # the whole field as a vector (module docstring)
         b, r = np.empty(3), np.empty(3)
         b[0], b[1], b[2] = mag
         r[0], r[1], r[2] = reference_unit

@@ -126,6 +126,7 @@ HEADING = _record(
     ("last_reading_ns", "i8"),  # tick of the last magnetometer reading
     ("has_last_fused_ns", "?"),
     ("last_fused_ns", "i8"),  # tick of the last magnetometer reading fused
+    ("vector_until_ns", "i8"),  # the field is a whole vector until this tick: a fast start with GNSS settling
 )
 
 ATTITUDE_SOURCE = _record(
