@@ -5,7 +5,8 @@ Short versions of the README's flights (200 Hz IMU, GNSS as GPS_RAW_INT at 10 Hz
 sim`` sends them): the multirotor's first 30 s (hover, banked turns, the start of the aggressive manoeuvres), the
 aggressive scenario (28 s, up to 500 deg/s), and the JSBSim Cessna's first 60 s (level, then a sustained
 coordinated 30-deg turn). RMS after the first 5 s. The bounds are the issue's (multirotor total 3 deg,
-aggressive 4 deg, fixed wing tilt 2 and total 3 deg); measured on these seeds: 0.7, 1.3, 1.0 / 2.3 deg.
+aggressive 4 deg, fixed wing tilt 2 and total 3 deg); measured on these seeds (2026-12-07): 1.09, 1.47,
+1.01 / 2.31 deg.
 
 Coverage: the truth inside the 90 % credible region (:func:`fuser.evaluate.credible_level`) on 85-95 % of the
 ticks. It is at least 85 %: the published uncertainty is not overconfident, with aiding or without it (below).
@@ -94,7 +95,7 @@ def test_aided_flights_meet_their_rms_bounds(flown):
 
 def test_without_gnss_the_same_flights_miss_them(flown):
     """What the aiding buys: the accelerometer alone takes the thrust or the lift for gravity in the turns, at least
-    twice as far off (the multirotor's 30 s alone: 2.7 deg total, 2.3 tilt, against 0.85 and 0.48 aided; before the
+    twice as far off (the multirotor's 30 s alone: 2.4 deg total, 2.1 tilt, against 1.09 and 0.66 aided; before the
     bias was learnt in motion without GNSS it also missed the 3-deg bound)."""
     name, (aided, _), (alone, _) = flown
     assert alone["total"] > 2.0 * aided["total"] and alone["tilt"] > 2.0 * aided["tilt"], (aided, alone)
@@ -149,20 +150,26 @@ def test_with_aiding_the_reported_uncertainty_is_calibrated(flown):
     assert np.mean(level <= 0.9) <= 0.95, np.mean(level <= 0.9)
 
 
-def test_a_start_in_a_sustained_turn_finds_the_attitude_within_a_second():
-    """Started 28 s into the JSBSim flight, in its sustained 30-deg turn (a ground station connecting mid-flight): the
-    first raw readings are the lift's direction, the bank's vertical. The first pair of GNSS fixes shows it (the raw
-    reading with the turn's acceleration taken out disagrees beyond the gate), the fast start runs again with the
-    acceleration taken out and the whole field as a vector (fuser/model/gravity.py, heading.py). Measured: 4.3 deg RMS
-    over the next 4 s after the first second (largest 5.4), the truth inside the 90 % region throughout; before,
-    30-60 deg off in tilt and 100-175 deg in heading for 15 s while reporting 5-6 deg. The truth is JSBSim's."""
+@pytest.mark.parametrize("start_s", [22.0, 25.0, 28.0, 31.0, 34.0, 40.0])
+def test_a_start_in_a_sustained_turn_finds_the_attitude(start_s):
+    """Started in the JSBSim flight's sustained 30-deg turn (15-55 s; a ground station connecting mid-flight): the
+    first raw readings are the lift's direction, the bank's vertical. The GNSS fixes show it (a raw reading with the
+    turn's acceleration taken out disagrees beyond the gate, at the first pair or one of the next before the state
+    converges), the fast start runs again with the acceleration taken out and the whole field as a vector, and the
+    field stays a vector until the aided correction has settled (fuser/model/gravity.py, heading.py). Measured
+    (after the first second: RMS total, largest, the truth inside the 90 % region; after 5 s: largest): 1.4-2.3 deg,
+    3.8-13.7, 100 %; 1.9-3.9 deg. Before (2026-12-06) only the 28-s start found it (4.1 deg, 98 %); from 22, 25, 31,
+    34 and 40 s the estimate stayed 7-21 deg RMS off (largest 15-57) reporting 3.5-5.4, inside the 90 % region on
+    0-89 % of the ticks. The truth is JSBSim's."""
     flight = FLIGHTS["fixedwing"]()
-    start = int(np.searchsorted(flight.t_ns, flight.t_ns[0] + 28e9))
+    start = int(np.searchsorted(flight.t_ns, flight.t_ns[0] + start_s * 1e9))
     counters: dict = {}
-    rms, level = _fly(flight.cut(start, len(flight.t_ns)), FuserConfig(), after_s=1.0, counters=counters)
+    cut = flight.cut(start, len(flight.t_ns))
+    rms, level = _fly(cut, FuserConfig(), after_s=1.0, counters=counters)
+    settled, _ = _fly(cut, FuserConfig(), after_s=5.0)
     assert counters.get("gnss_restart", 0) >= 1, counters
-    assert rms["max"] < 8.0 and rms["total"] < 5.0, rms
-    assert np.mean(level <= 0.9) >= 0.85, np.mean(level <= 0.9)
+    assert rms["total"] < TOTAL_BOUND_DEG["fixedwing"] and np.mean(level <= 0.9) >= 0.85, (rms, np.mean(level <= 0.9))
+    assert settled["max"] < 5.0, settled
 
 
 def test_a_start_in_a_sustained_turn_without_gnss_says_it_cannot_see():
@@ -189,26 +196,41 @@ def test_a_faster_loop_is_not_less_accurate(gnss):
     assert rms[200.0] <= 1.15 * rms[100.0], rms
 
 
-def _every_tenth_fix(flight) -> Iterator[tuple[int, list]]:
-    """The flight's deliveries with one GNSS fix in ten (a 1 Hz receiver)."""
+def _one_fix_in(flight, n: int) -> Iterator[tuple[int, list]]:
+    """The flight's deliveries with one GNSS fix in ``n`` (10: a 1 Hz receiver)."""
     fixes = 0
     for receive_ns, samples in received(flight):
         kept = []
         for s in samples:
             if isinstance(s, GnssSample):
                 fixes += 1
-                if fixes % 10:
+                if fixes % n:
                     continue
             kept.append(s)
         yield receive_ns, kept
 
 
-@pytest.mark.xfail(strict=True, reason="1 Hz fixes: 11.5 deg off reporting 3.1, the truth inside the 90 % region on 29 % "
-                                       "of the ticks; the bias feedback learns the first seconds' corrections (README)")
-def test_with_one_fix_a_second_the_fixed_wing_is_not_overconfident():
-    """The Cessna's 60 s with a 1 Hz receiver (5 Hz and up: 1.0-2.3 deg, 100 %). Without the bias feedback
-    (``[fuser.bias] feedback_enabled = false``) 1.7 deg, 100 %: what the feedback learns in the first seconds, the
-    heading's convergence as a z bias (0.9 deg/s off) and each 1-s reading's tilt correction, is what is wrong."""
+_SLOW_FIXES_NOT_MET = ("the aided bias feedback (the whole correction of the ticks with a pair of fixes) learns the first "
+                       "seconds' heading convergence as a z bias and unlearns it at the pairs' pace (docstring)")
+
+
+@pytest.mark.parametrize("one_in", [pytest.param(10, id="1 Hz", marks=pytest.mark.xfail(strict=True, reason=_SLOW_FIXES_NOT_MET)),
+                                    pytest.param(5, id="2 Hz"),
+                                    pytest.param(2, id="5 Hz", marks=pytest.mark.xfail(
+                                        strict=True, reason="82 % (2.9 deg), not analysed beyond the trial in the docstring, "
+                                                            "whose Kalman-learnt heading row gave 1.2 deg, 100 %"))])
+def test_with_slow_fixes_the_fixed_wing_meets_its_bounds_and_is_not_overconfident(one_in):
+    """The Cessna's 60 s with a 1, 2 and 5 Hz receiver (one fix in ten, five, two; 10 Hz: 2.3 deg, 100 %). Measured
+    2026-12-07: 11.5 deg off reporting 3.1 (the truth inside the 90 % region on 29 % of the ticks), 1.0 deg (100 %),
+    2.9 deg (82 %). The aided bias feedback feeds back the whole correction of the ticks with a pair of fixes: it
+    learns the heading's convergence in the first seconds as a z bias (0.9 deg/s off at 1 Hz) and sees the
+    magnetometer's corrections only once a pair. Without the feedback (``[fuser.bias] feedback_enabled = false``)
+    1.7 deg, 100 % at 1 Hz. Tried and not kept: learning the bias's heading row from every magnetometer reading by
+    its Kalman filter while GNSS aids (2.0, 1.1, 1.2, 1.4 deg at 1, 2, 5, 10 Hz, all 100 %), which regressed the
+    multirotor's short flights (seeds 0, 3, 7: mean 2.40 -> 2.60 deg) and the 4-min flights of the README's table
+    (the Cessna 1.74 -> 2.08): it learnt the z bias 0.2-0.45 deg/s wrong for tens of seconds reporting 0.08 deg/s,
+    the heading corrections carrying the tilt of the accelerometer's unestimated bias through the field's dip."""
     flight = FLIGHTS["fixedwing"]()
-    rms, level = _fly(flight, FuserConfig(), deliveries=_every_tenth_fix(flight))
+    rms, level = _fly(flight, FuserConfig(), deliveries=_one_fix_in(flight, one_in))
+    assert rms["total"] < TOTAL_BOUND_DEG["fixedwing"] and rms["tilt"] < TILT_BOUND_DEG["fixedwing"], rms
     assert np.mean(level <= 0.9) >= 0.85, (np.mean(level <= 0.9), rms)

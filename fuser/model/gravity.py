@@ -47,7 +47,7 @@ pair's, is the noisiest (started 31 s into the JSBSim Cessna's 30-deg turn it
 disagreed by 27.2 deg against a gate of 27.6, the state converged 24 deg off
 in tilt and stayed 20 deg RMS off for the flight's 29 s while reporting 4.8);
 the next pairs' low-passed acceleration shows the turn before the state has
-converged (1.9 deg RMS).
+converged (1.8 deg RMS).
 
 **Disputed.** A reading kept out by the gate says that the state or the reading is wrong, and the model cannot
 tell which: a linear acceleration the low-pass left, or a state the gyro took away (a bias that appeared in
