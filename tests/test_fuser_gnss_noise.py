@@ -10,8 +10,14 @@ Measured over eight noise seeds (0-7), RMS after 5 s, reported uncertainty, the 
 0.25 m/s in all under the claim of 0.1, fused as claimed (before :mod:`fuser.model.velocity`'s "Noise"), 2.6-8.1 deg
 off reporting 3.4-4.2, inside on 16-92 % of the ticks (one seed of eight within the flight's bound and 85 %); with
 the noise measured, six seeds 0.9-1.9 deg at 100 %, two whose first pair restarted the fast start 5.1 (100 %) and
-9.3 deg (41 %). 0.5 m/s: before 11-40 deg, 0-38 %; now 6-20 deg, 6-90 %, every seed's first pair restarting the
+9.3 deg (41 %). 0.5 m/s: before 11-40 deg, 0-38 %; then 6-20 deg, 6-90 %, every seed's first pair restarting the
 fast start (the strict xfail below): the first pair is checked before any noise can be measured.
+
+Since every GNSS reading checks the state until it has converged (2026-12-07, :mod:`fuser.model.gravity`), a
+restart on a noisy first pair is followed by checks on the next, low-passed pairs, which find the attitude again:
+0.25 m/s, all eight seeds 0.9-1.9 deg at 100 % (the two that restart 1.4 and 1.6 deg); 0.5 m/s, 2.1-5.2 deg
+reporting 4.6-4.9, the truth inside the 90 % region on 91-100 % of the ticks (measured at d665788 in the same run:
+9.3 and 5.1 deg; 6.0-20.5 deg at 6-90 %). Every 0.5-m/s seed still restarts on its first pair.
 """
 
 from __future__ import annotations
@@ -29,6 +35,8 @@ CLAIMED_M_S = 0.1
 """What every fix claims (the simulator's own noise)."""
 ADDED_M_S = 0.23
 """White noise per axis added to each fix: with the simulator's 0.1, 0.25 m/s in all."""
+FIVE_TIMES_M_S = 0.49
+"""The same, 0.5 m/s in all: five times the claim."""
 SEEDS = range(8)
 
 
@@ -55,13 +63,21 @@ def _fused(flight, added_m_s: float, seed: int):
 
 
 def test_a_receiver_noisier_than_it_claims_is_neither_far_off_nor_overconfident(clean_flight):
-    """Of eight noise seeds, at least six within the flight's RMS bound with the truth inside the 90 % region on 85 %
-    of the ticks (before: one)."""
+    """All eight noise seeds within the flight's RMS bound with the truth inside the 90 % region on 85 % of the ticks
+    (before the noise was measured: one; before the restart check ran until convergence: six)."""
     good = []
     for seed in SEEDS:
         rms, level, _, _ = _fused(clean_flight, ADDED_M_S, seed)
         good.append(rms["total"] < TOTAL_BOUND_DEG["multirotor"] and np.mean(level <= 0.9) >= 0.85)
-    assert sum(good) >= 6, good
+    assert all(good), good
+
+
+def test_a_receiver_five_times_noisier_than_it_claims_is_not_overconfident(clean_flight):
+    """0.5 m/s under a claim of 0.1: every seed restarts the fast start on its first pair, and the checks after it find
+    the attitude again: the truth inside the 90 % region on at least 85 % of the ticks on every seed (measured
+    91-100 %; 6-90 % while the first pair alone was checked)."""
+    coverage = [float(np.mean(_fused(clean_flight, FIVE_TIMES_M_S, seed)[1] <= 0.9)) for seed in SEEDS]
+    assert min(coverage) >= 0.85, coverage
 
 
 def test_the_noise_the_fixes_show_is_what_was_added(clean_flight):
@@ -83,7 +99,8 @@ def test_an_honest_receiver_is_weighed_with_about_its_own_figure(clean_flight):
 
 
 @pytest.mark.xfail(strict=True, reason="the first pair is checked against the state before any noise is measured: at five "
-                                       "times its claim it restarts the fast start, 12 deg off reporting 4.3 (module docstring)")
+                                       "times its claim it restarts the fast start (the checks after it now recover: 2.9 deg "
+                                       "reporting 4.9, module docstring)")
 def test_a_receiver_five_times_noisier_than_it_claims_does_not_restart_the_fast_start(clean_flight):
-    rms, level, _, counters = _fused(clean_flight, 0.49, 0)
+    rms, level, _, counters = _fused(clean_flight, FIVE_TIMES_M_S, 0)
     assert counters.get("gnss_restart", 0) == 0, (counters, rms)
