@@ -103,8 +103,7 @@ def update_heading(params_mag: np.record, params_updates: np.record, field_ned_g
     field ``field_ned_gauss`` (:mod:`fuser.model.field`). ``heading`` is the state's ``heading`` part, this reading's
     time already noted: its ``gated_s`` and ``vector_until_ns`` are changed in place (the field a whole vector for
     ``settle_s`` after a fast start with GNSS, module docstring)."""
-    gnss_fast_start = not gravity.converged and gravity.gnss_checked
-    if gnss_fast_start:  # the whole field until the fast start has settled (module docstring)
+    if not gravity.converged and gravity.gnss_checked:  # a fast start with GNSS: the whole field until it has settled
         heading.vector_until_ns = heading.last_reading_ns + round(settle_s * 1e9)
     if not gravity.tilt_known:
         return _gated(BEFORE_TILT)
@@ -133,7 +132,7 @@ def update_heading(params_mag: np.record, params_updates: np.record, field_ned_g
     heading.gated_s = verdict.gated_s
     if verdict.outcome == GATED:
         return HeadingReading(False, np.zeros((4, 4)), diagnostic)
-    if gnss_fast_start or heading.last_reading_ns < heading.vector_until_ns:  # the whole field as a vector (module docstring)
+    if heading.last_reading_ns < heading.vector_until_ns:  # the whole field as a vector (module docstring)
         b, r = np.empty(3), np.empty(3)
         b[0], b[1], b[2] = mag
         r[0], r[1], r[2] = reference_unit
