@@ -36,6 +36,7 @@ def test_products_agree_with_numpy_to_rounding():
         np.testing.assert_allclose(vec3.vec_mat(fa, rows), a @ m, rtol=0, atol=1e-13)
         assert vec3.dot(fa, fb) == pytest.approx(float(a @ b), abs=1e-13)
         assert vec3.norm(fa) == pytest.approx(float(np.linalg.norm(a)), rel=1e-15)
+        np.testing.assert_allclose(vec3.cross(fa, fb), np.cross(a, b), rtol=0, atol=1e-13)
 
 
 def test_low_pass_step_and_difference_round_as_numpy_does():
@@ -64,5 +65,6 @@ def test_hand_worked_values():
     assert vec3.toward((0.0, 0.0, 0.0), (2.0, 4.0, -8.0), 0.25) == (0.5, 1.0, -2.0)
     assert vec3.sub((1.0, 2.0, 3.0), (4.0, -5.0, 6.5)) == (-3.0, 7.0, -3.5)
     assert vec3.scaled((1.0, -2.0, 0.5), 4.0) == (4.0, -8.0, 2.0)
+    assert vec3.cross((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)) == (0.0, 0.0, 1.0)  # x cross y = z
     assert vec3.angle_rad(1.0 + 1e-15) == 0.0 and vec3.angle_rad(-1.0 - 1e-15) == math.pi
     assert vec3.ZERO == (0.0, 0.0, 0.0)

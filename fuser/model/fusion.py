@@ -66,12 +66,12 @@ from fuser.model.tick import GNSS_INPUT, IMU_INPUT, TICK_OUTPUT, TickContext, Ti
 __all__ = ["EVENTS", "FusionModel", "tick"]
 
 EVENTS = ("imu_disagree", "gyro_gap", "gyro_saturated", "no_gyro", "gyro_held", "gnss_lost", "rest_ticks", "gnss_restart",
-          "attitude_unused", "imu_too_many", "gnss_too_many")
+          "attitude_unused", "gnss_disputes", "imu_too_many", "gnss_too_many")
 """The tick's event counters, by code (each name's index). The last two are the Python wrapper's: samples of an IMU
 beyond :data:`~fuser.model.state.MAX_IMUS` or a GNSS stream beyond :data:`~fuser.model.state.MAX_GNSS_STREAMS` of
 the one vehicle, not fused."""
-(IMU_DISAGREE, GYRO_GAP, GYRO_SATURATED, NO_GYRO, GYRO_HELD, GNSS_LOST, REST_TICKS, GNSS_RESTART, ATTITUDE_UNUSED, IMU_TOO_MANY,
- GNSS_TOO_MANY) = map(np.int64, range(11))  # numpy integers: a Python int would compile _event once per code (fuser.model.diagnostics)
+(IMU_DISAGREE, GYRO_GAP, GYRO_SATURATED, NO_GYRO, GYRO_HELD, GNSS_LOST, REST_TICKS, GNSS_RESTART, ATTITUDE_UNUSED, GNSS_DISPUTES,
+ IMU_TOO_MANY, GNSS_TOO_MANY) = map(np.int64, range(12))  # numpy integers: a Python int would compile _event once per code (fuser.model.diagnostics)
 
 _RESTART_RAD2 = math.radians(60.0) ** 2
 """Per-axis variance added to the state when the fast start runs again: wide enough for its raw readings and
@@ -299,8 +299,9 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
                              frame_broken or not s.gravity.converged)
 
     # 4. publish: carried ahead of the tick by the held rate, widened by the model error, the error of a rate held since
-    # the last sample and over the lead, an IMU kept out, without GNSS aiding the acceleration the norm reveals, and
-    # the bias error along the vertical while the heading is held on the gyro
+    # the last sample and over the lead, an IMU kept out, without GNSS aiding the acceleration the norm reveals, a
+    # disputed gravity reading or the GNSS fixes' residuals, and the bias error along the vertical while the heading
+    # is held on the gyro
     ahead = extrapolation.lead(p.gyro, s.gyro, vec3.load(s.bias.estimate_rad_s), tick_ns, carry_ns)
     widening = motion.hold_variance_rad2 + ahead.variance_rad2
     if imu_fault:
@@ -308,6 +309,11 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
     field = (field_ned_gauss[0], field_ned_gauss[1], field_ned_gauss[2])
     unseen_tilt, unseen_heading = unaided.unseen_variances_rad2(p.accel, s.unaided, p.mag.enabled, field)
     disputed_rad2 = 0.0 if autopilot_down else s.gravity.disputed_rad * s.gravity.disputed_rad
+    # the GNSS fixes' residuals against the state, beyond what their noise makes: the state at least that far off
+    excess_rad2 = 0.0 if autopilot_down else velocity.attitude_excess_rad2(p.gnss, p.updates, s.velocity, tick_ns)
+    if excess_rad2 > max(disputed_rad2, unseen_tilt):
+        disputed_rad2 = excess_rad2
+        n_events = _event(event_codes, event_counts, n_events, GNSS_DISPUTES, 1)
     if disputed_rad2 > unseen_tilt:  # a gravity reading that disputes the state may be right: the state that far off
         unseen_tilt, unseen_heading = disputed_rad2, unaided.heading_through_dip_rad2(disputed_rad2, p.mag.enabled, field)
     held_s = _heading_held_s(s.heading, s.attitude_source, tick_ns)

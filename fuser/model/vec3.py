@@ -14,7 +14,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["ZERO", "angle_rad", "dot", "load", "mat_vec", "norm", "scaled", "store", "sub", "toward", "vec_mat", "wrapped_pi"]
+__all__ = ["ZERO", "angle_rad", "cross", "dot", "load", "mat_vec", "norm", "scaled", "store", "sub", "toward", "vec_mat", "wrapped_pi"]
 
 ZERO = (0.0, 0.0, 0.0)
 
@@ -34,6 +34,12 @@ def store(out: np.ndarray, v: tuple) -> None:
 @njit(cache=True, nogil=True)
 def dot(a: tuple, b: tuple) -> float:
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, nogil=True)
+def cross(a: tuple, b: tuple) -> tuple:
+    """``a x b``."""
+    return a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]
 
 
 @njit(cache=True, nogil=True)
