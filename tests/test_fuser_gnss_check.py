@@ -36,10 +36,13 @@ def _tilted(deg: float) -> tuple:
     return tuple(quat.from_axis_angle([1.0, 0.0, 0.0], math.radians(deg)))
 
 
-def _accelerating(state_q: tuple, accuracy_m_s: float, seconds: float = 5.0, scale: float = 1.0) -> tuple[FilterState, int]:
+def _accelerating(state_q: tuple, accuracy_m_s: float, seconds: float = 5.0, scale: float = 1.0,
+                  second_stream_error_m_s2: float | None = None) -> tuple[FilterState, int]:
     """A fresh state's velocity part after ``seconds`` of 100 Hz ticks of the level vehicle accelerating north at
     ``ACCEL_M_S2`` (its accelerometer ``scale`` times right) with a fix every 0.1 s (``accuracy_m_s`` claimed, and
-    exact), the state's attitude ``state_q`` throughout; (state, the last tick's time)."""
+    exact), the state's attitude ``state_q`` throughout; (state, the last tick's time). ``second_stream_error_m_s2``:
+    an autopilot's solution too (another stream, horizontal only: not selected), in the same ticks, whose velocity
+    runs away east at that rate."""
     state = initial_state(FuserConfig())
     gravity = part("gravity")  # its strapdown frame the body's
     tick_ns = 0
@@ -51,8 +54,13 @@ def _accelerating(state_q: tuple, accuracy_m_s: float, seconds: float = 5.0, sca
             fix = GnssSample(tick_ns, 3, (ACCEL_M_S2 * measured_s, 0.0, 0.0), True, accuracy_m_s, None, None, None, False,
                              SourceId("mavlink", 1, 1, 0))
             fixes = [(fix, tick_ns, 0)]
+            if second_stream_error_m_s2 is not None:
+                now_s = (tick_ns - 1_000_000_000) * 1e-9  # a navigation solution is not late (gnss.filtered_latency_ms 0)
+                fixes.append((GnssSample(tick_ns, 3, (ACCEL_M_S2 * now_s, second_stream_error_m_s2 * now_s, 0.0), False, accuracy_m_s,
+                                         None, None, None, True, SourceId("mavlink", 1, 1, 0)), tick_ns, 1))
+        diagnostics = np.zeros(max(len(fixes), 1), DIAGNOSTIC)  # one per fix (the compiled code does not check bounds)
         track_velocity(P.gnss, P.accel, P.updates, state.velocity, state.knots_ns, state.knots, gnss_input(fixes), gravity, True,
-                       tuple(scale * F_BODY), tick_ns, TICK_NS, state_q, 3.0, 2.0, 3.0, False, np.zeros(1, DIAGNOSTIC), 0)
+                       tuple(scale * F_BODY), tick_ns, TICK_NS, state_q, 3.0, 2.0, 3.0, False, diagnostics, 0)
     return state, tick_ns
 
 
@@ -118,3 +126,14 @@ def test_an_old_check_says_nothing():
     age_ns = round((P.gnss.max_age_s + P.gnss.latency_ms * 1e-3) * 1e9)
     assert _excess_deg(state, newest + age_ns) > 9.0
     assert _excess_deg(state, newest + age_ns + 1) == 0.0
+
+
+def test_only_the_selected_streams_pairs_check_the_state():
+    """A receiver's fixes (vertical velocity: selected) and an autopilot's solution whose velocity runs away east at
+    1 m/s^2 (not selected): the check is the receiver's alone, the state right, nothing shown. Its pairs taken in
+    too read 0.52 m/s^2 of the runaway, 3.0 deg, as the state's error (and the noise recursion, which counts
+    consecutive pairs sharing a fix, would be wrong for pairs of two streams interleaved)."""
+    state, now = _accelerating(LEVEL, 1e-5, second_stream_error_m_s2=1.0)
+    assert state.velocity.stream_seen[1]  # the second stream was read
+    np.testing.assert_allclose(state.velocity.residual_lp_m_s2, 0.0, atol=1e-9)
+    assert attitude_excess_rad2(P.gnss, P.updates, state.velocity, now) == 0.0

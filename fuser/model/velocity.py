@@ -106,7 +106,10 @@ published uncertainty 3.3 deg). Each pair's residual of the jump check below,
 ``r = a - (R_est R_SB^T f + g e_z)`` with ``f`` the pair's own mean force, is
 free of that: it compares the state of now with this interval's
 acceleration, and an attitude error ``d`` makes it ``d x f`` (to within
-``d`` times the bias times the latency). It is low-passed in the world with
+``d`` times the bias times the latency). The selected stream's pairs alone
+(consecutive pairs then share a fix, as the noise's recursion counts; an
+autopilot's solution running away beside a receiver read 3 deg of error
+into a right state otherwise). It is low-passed in the world with
 ``gnss.residual_lowpass_s``, the force beside it; its noise is the velocity
 noise differenced and low-passed as above (the accelerometer's bias and scale
 lie along ``f`` and do not count: the part across ``f`` is read). Where that
@@ -446,11 +449,12 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         innovation_m_s2 = vec3.norm(difference)
         ratio = (innovation_m_s2 / gate) * (innovation_m_s2 / gate)
         outcome, reason = GATED, NO_REASON
-        if ratio <= 1.0:
+        selected = _selected(state, measured, max_age_ns) == slot
+        if ratio <= 1.0 and selected:  # one stream's pairs: consecutive ones share a fix, as the noise's recursion counts
             _check_residual(params, state, difference, expected, measured, span_s, noise_m_s, previous_noise, max_age_ns)
         if ratio > 1.0:
             reason = JUMP
-        elif _selected(state, measured, max_age_ns) != slot:
+        elif not selected:
             reason = UNSELECTED
         elif not has_lp and not may_aid:
             reason = UNCONVERGED
