@@ -137,3 +137,36 @@ def test_only_the_selected_streams_pairs_check_the_state():
     assert state.velocity.stream_seen[1]  # the second stream was read
     np.testing.assert_allclose(state.velocity.residual_lp_m_s2, 0.0, atol=1e-9)
     assert attitude_excess_rad2(P.gnss, P.updates, state.velocity, now) == 0.0
+
+
+def test_the_aided_low_pass_starts_as_the_running_mean_of_its_pairs():
+    """VQF starts its low-passes as the mean of their first ``tau / Ts`` samples; so do the aided low-pass and the
+    check's (fuser/model/velocity.py, "Sigma"). Noisy fixes 0.1 s apart; the accelerometer's history starts with the
+    first stream's first fix, so the pairs ending at the first three are gaps (the earlier fix measured before it)
+    and six enter, within ``tau`` = 3 s: the world side is ``g e_z`` less their mean acceleration, which telescopes
+    to ``(v_8 - v_2) / 0.6 s``, and its noise variance per axis ``2 s^2 / (0.6 s)^2``: a sixth of the first pair's
+    standard deviation (an exponential low-pass from the first pair, ``alpha`` = 0.1 / 3, kept 0.84 of it)."""
+    s = 0.3
+    noise = np.random.default_rng(5).standard_normal((9, 3)) * s
+    state = initial_state(FuserConfig())
+    gravity = part("gravity", tilt_known=True)  # a tilt known: the aiding may start
+    fix_ticks = {50 + 10 * k: k for k in range(9)}
+    velocities = []
+    for k in range(1, 141):
+        tick_ns = 1_000_000_000 + k * TICK_NS
+        fixes = []
+        if k in fix_ticks:
+            measured_s = (tick_ns - 1_000_000_000) * 1e-9 - P.gnss.latency_ms * 1e-3
+            velocity = np.array([ACCEL_M_S2 * measured_s, 0.0, 0.0]) + noise[fix_ticks[k]]
+            velocities.append(velocity)
+            fixes = [(GnssSample(tick_ns, 3, tuple(velocity), True, s, None, None, None, False, SourceId("mavlink", 1, 1, 0)), tick_ns, 0)]
+        track_velocity(P.gnss, P.accel, P.updates, state.velocity, state.knots_ns, state.knots, gnss_input(fixes), gravity, True,
+                       tuple(F_BODY), tick_ns, TICK_NS, LEVEL, 3.0, 2.0, 3.0, False, np.zeros(1, DIAGNOSTIC), 0)
+    v = state.velocity
+    mean_accel = (velocities[8] - velocities[2]) / 0.6
+    assert v.has_lp and v.lp_s == pytest.approx(0.6)
+    np.testing.assert_allclose(v.world_lp_m_s2, [-mean_accel[0], -mean_accel[1], G - mean_accel[2]], atol=1e-9)
+    np.testing.assert_allclose(v.body_lp_m_s2, -F_BODY, atol=1e-9)  # the accelerometer's force, the same mean
+    assert v.noise_var_m2_s4 == pytest.approx(2.0 * s * s / 0.6 ** 2, rel=1e-9)
+    np.testing.assert_allclose(v.residual_lp_m_s2, [mean_accel[0] - ACCEL_M_S2, mean_accel[1], mean_accel[2]], atol=1e-9)
+    assert v.residual_noise_var_m2_s4 == pytest.approx(2.0 * s * s / 0.6 ** 2, rel=1e-9)

@@ -168,6 +168,7 @@ VELOCITY = _record(
     ("has_lp", "?"),  # aiding: the two low-passes below
     ("body_lp_m_s2", "f8", (3,)),  # low-pass of the minus specific force over the GNSS intervals, strapdown frame
     ("world_lp_m_s2", "f8", (3,)),  # the same low-pass of g e_z - a (NED)
+    ("lp_s", "f8"),  # seconds of pairs the two low-passes hold since they started (their running mean until tau)
     ("vertical", "?"),  # the last pair's vertical acceleration was measured
     ("noise_var_m2_s4", "f8"),  # variance per axis of the GNSS velocity noise left in the world low-pass
     ("noise_cov_m2_s3", "f8"),  # its covariance with the last fix's velocity noise
@@ -184,6 +185,7 @@ VELOCITY = _record(
     ("residual_force_m_s2", "f8", (3,)),  # the specific force over the same pairs, rotated alike (NED), low-passed alike
     ("residual_noise_var_m2_s4", "f8"),  # variance per axis of the GNSS velocity noise left in that low-pass
     ("residual_noise_cov_m2_s3", "f8"),
+    ("residual_s", "f8"),  # seconds of pairs that low-pass holds since it started
     ("residual_ns", "i8"),  # when its newest pair was measured
 )
 """GNSS velocity aiding's memory (:mod:`fuser.model.velocity`)."""

@@ -74,7 +74,15 @@ direction error, that over ``|w|``, is correlated over ``tau`` and so
 counted once per ``tau`` (``sqrt(tau / T)`` per reading, as the
 magnetometer's correlated error is). The low-pass starts from the first
 pair itself, raw noise and all (not from the estimate: after an outage in a
-turn the estimate is what is wrong), so the first readings count for little.
+turn the estimate is what is wrong), and is the running mean of the pairs
+until they span ``tau``, as VQF starts its low-passes: the differenced noise
+then falls as ``1 / n`` (the differences telescope), where the first pair
+taken whole with the low-pass's own ``alpha`` kept ``(1 - alpha)^n`` of it
+(after 5 pairs at ``tau`` = 1.3 s, 0.67 of the first pair's 8 deg, against a
+fifth). Those first readings counted for so little that the simulated hover
+of seed 3, whose 1.5 deg/s bias was not yet learnt, drifted from 3 to 6 deg
+of tilt in the aiding's first second and started 9.6-9.9 deg off while
+reporting 4.1-4.4 (2-3 s); with the running mean 7.8-7.9 reporting 4.3-5.6.
 
 **Noise.** A receiver's speed accuracy is its own claim, and the claim can
 be low: in multipath, or from a receiver that reports none at all
@@ -120,10 +128,11 @@ disputed gravity reading (:mod:`fuser.model.gravity`, "Disputed"; counted as
 ``gnss_disputes``). The state is not changed by it. Bias step, simulated
 hover, seeds 0-3, the share of the estimates over twice their reported
 uncertainty from 4 to 30 s: 43.6 / 39.0 / 37.6 / 54.7 % before, 0.5 / 0 / 0 /
-12.2 % with it (seed 3's is its start, 9-10 deg off reporting 4 with its
-unlearnt 1.5 deg/s bias, before the step); the nominal flights' published
-uncertainty did not move (the 30-s multirotor, aggressive and Cessna flights
-3.35 / 3.56 / 3.03 deg). Tried on seed 0: a 1-s low-pass, 13.5 %; a 3-s
+12.2 % with it (seed 3's from its start, 9-10 deg off reporting 4 with its
+unlearnt 1.5 deg/s bias, before the step), 0 % on all four once the low-pass
+above started as a running mean; the nominal flights' published uncertainty
+did not move (the 30-s multirotor, aggressive and Cessna flights 3.35 / 3.56 /
+3.03 deg). Tried on seed 0: a 1-s low-pass, 13.5 %; a 3-s
 one, 5.3 % (it lags the error's growth); the noise counted once instead of
 three times, 0 % but every nominal flight 0.14-0.37 deg wider; the
 accelerometer's error (``accel_error_m_s2``) counted as the residual's own,
@@ -302,16 +311,28 @@ def _noise_after(variance: float, covariance: float, alpha: float, span_s: float
 
 
 @njit(cache=True, nogil=True)
+def _start_alpha(span_s: float, tau_s: float, held_s: float) -> float:
+    """A low-pass step over a pair ``span_s`` long, with ``held_s`` of pairs in it (this one included): the running
+    mean of the pairs until they span ``tau_s``, then the first-order low-pass (``span / tau``), as VQF starts its
+    low-passes (``filterVec``: the mean of the first ``tau / Ts`` samples). A differenced velocity's noise then
+    falls as ``1 / n`` over the first ``n`` pairs (their differences telescope), not as ``(1 - alpha)^n`` after a
+    first pair taken whole (module docstring, "Sigma")."""
+    return min(1.0, max(span_s / tau_s, span_s / held_s))
+
+
+@njit(cache=True, nogil=True)
 def _check_residual(params: np.record, state: np.record, difference: tuple, force_ned_m_s2: tuple, measured_ns: int, span_s: float,
                     noise_m_s: float, previous_noise_m_s: float, max_age_ns: int) -> None:
     """One pair's acceleration residual against the estimate (the jump check's ``difference``) and the specific
     force it was checked with (in NED through the estimate) into the world-frame low-passes
     :func:`attitude_excess_rad2` reads, with the velocity noise they hold (module docstring, "Checked"); they start
     again from this pair after ``max_age_s`` without one."""
-    alpha = min(1.0, span_s / params.residual_lowpass_s)
-    variance, covariance = state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3
+    variance, covariance, held_s = state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3, state.residual_s
     if not state.has_residual_lp or measured_ns - state.residual_ns > max_age_ns:
-        alpha, variance, covariance = 1.0, 0.0, 0.0
+        variance, covariance, held_s = 0.0, 0.0, 0.0
+    held_s += span_s
+    alpha = _start_alpha(span_s, params.residual_lowpass_s, held_s)
+    state.residual_s = held_s
     vec3.store(state.residual_lp_m_s2, vec3.toward(vec3.load(state.residual_lp_m_s2), difference, alpha))
     vec3.store(state.residual_force_m_s2, vec3.toward(vec3.load(state.residual_force_m_s2), force_ned_m_s2, alpha))
     state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3 = _noise_after(variance, covariance, alpha, span_s, noise_m_s,
@@ -388,7 +409,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
     was_aiding = state.has_lp
     has_lp = was_aiding and may_aid
     body_lp, world_lp = vec3.load(state.body_lp_m_s2), vec3.load(state.world_lp_m_s2)
-    vertical, noise_var, noise_cov, fused = state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3, False
+    vertical, noise_var, noise_cov, fused, lp_s = state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3, False, state.lp_s
     has_recent, recent_world, recent_ns = state.has_recent, vec3.load(state.recent_world_m_s2), state.recent_ns
     recent_var, recent_cov = state.recent_noise_var_m2_s4, state.recent_noise_cov_m2_s3
     nan = math.nan
@@ -459,10 +480,11 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         elif not has_lp and not may_aid:
             reason = UNCONVERGED
         else:
-            alpha = min(1.0, span_s / tau_s)
-            if not has_lp:
-                alpha, noise_var, noise_cov = 1.0, 0.0, 0.0  # the low-pass starts from this pair: unbiased, its noise counted
+            if not has_lp:  # the low-pass starts from this pair: unbiased, its noise counted
+                noise_var, noise_cov, lp_s = 0.0, 0.0, 0.0
                 has_lp, body_lp, world_lp = True, vec3.ZERO, vec3.ZERO
+            lp_s += span_s
+            alpha = _start_alpha(span_s, tau_s, lp_s)
             body_lp = vec3.toward(body_lp, (-force[0], -force[1], -force[2]), alpha)
             world_lp = vec3.toward(world_lp, gravity_less_accel, alpha)
             noise_var, noise_cov = _noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous_noise)
@@ -497,7 +519,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
     state.has_lp = has_lp
     vec3.store(state.body_lp_m_s2, body_lp)
     vec3.store(state.world_lp_m_s2, world_lp)
-    state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3 = vertical, noise_var, noise_cov
+    state.vertical, state.noise_var_m2_s4, state.noise_cov_m2_s3, state.lp_s = vertical, noise_var, noise_cov, lp_s if has_lp else 0.0
     state.has_last_fused_ns, state.last_fused_ns = has_last, last_fused_ns if has_last else 0
     state.has_recent, state.recent_ns = has_recent, recent_ns
     vec3.store(state.recent_world_m_s2, recent_world)
