@@ -512,7 +512,7 @@ class GnssSettings(Settings):
     residual_lowpass_s: Seconds = 2.0
     """The same comparison, pair by pair, low-passed in the world with this time constant: how far the estimate
     is off, which the published attitude covers where it exceeds what the comparison's own error explains
-    (:func:`fuser.model.velocity.attitude_excess_rad2`); the differenced velocity noise down by about 4 at 10 Hz."""
+    (:func:`fuser.model.velocity_check.attitude_excess_rad2`); the differenced velocity noise down by about 4 at 10 Hz."""
     moving_speed_m_s: Annotated[float, Range(gt=0, unit="m/s")] = 1.0
     """A vehicle whose latest fix is faster than this is moving, whatever its IMU says: rest detection is off
     (a smooth cruise with little vibration otherwise passes for rest, and its slow turn rates for a bias)."""

@@ -102,7 +102,7 @@ def test_a_gyro_bias_appearing_in_flight_with_gnss_is_shown_by_the_fixes(seed):
     """The same bias with GNSS: the aided readings, low-passed in the frame the biased gyro turns, drift along with
     the state and keep agreeing with it (7-11 deg off, every innovation 1-3 deg against a sigma of 4); each pair of
     fixes' residual against the state shows the error, and the published attitude covers it
-    (fuser/model/velocity.py, "Checked"). Over twice the reported uncertainty from 4 to 30 s: 43.6 / 39.0 / 37.6 /
+    (fuser/model/velocity_check.py). Over twice the reported uncertainty from 4 to 30 s: 43.6 / 39.0 / 37.6 /
     54.7 % of the estimates before (seeds 0-3, c50e74e); with the check 0.5 / 0 / 0 / 12.2 % (seed 3's from its
     start, 9-10 deg off reporting 4 before the step, its 1.5 deg/s bias unlearnt); with the aided low-pass started
     as a running mean too, 0 % on all four. The accuracy is about the same (6.8-9.1 deg RMS): the state is not

@@ -1,4 +1,4 @@
-"""The GNSS fixes' check of the state (fuser/model/velocity.py, "Checked"), against closed forms.
+"""The GNSS fixes' check of the state (fuser/model/velocity_check.py), against closed forms.
 
 A level vehicle accelerating north at ``A`` (its specific force ``f = (A, 0, -g)`` in the body, the world and the
 strapdown frame alike), a fix every 0.1 s of the velocity it has: each pair's acceleration is ``a = (A, 0, 0)``, so
@@ -20,7 +20,8 @@ from drivers.samples import GnssSample, SourceId
 from fuser.config import AccelSettings, FuserConfig
 from fuser.model.diagnostics import DIAGNOSTIC
 from fuser.model.state import FilterState, initial_state
-from fuser.model.velocity import attitude_excess_rad2, track_velocity
+from fuser.model.velocity import track_velocity
+from fuser.model.velocity_check import attitude_excess_rad2
 from model_records import gnss_input, params, part
 
 G = AccelSettings().gravity_m_s2

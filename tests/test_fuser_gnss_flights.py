@@ -225,7 +225,7 @@ def test_with_slow_fixes_the_fixed_wing_meets_its_bounds_and_is_not_overconfiden
     2026-12-07: 11.5 deg off reporting 3.1 (the truth inside the 90 % region on 29 % of the ticks), 1.0 deg (100 %),
     2.9 deg (82 %); since the GNSS check and the running-mean start (2026-12-07, later): 11.5 deg reporting 4.9 (48 %),
     1.0 deg (100 %), 2.9 deg (81 %); the 1-Hz error is a rotation about the turn's lift axis, which no GNSS
-    acceleration shows (fuser/model/velocity.py, "Checked"). The aided bias feedback feeds back the whole correction of the ticks with a pair of fixes: it
+    acceleration shows (fuser/model/velocity_check.py). The aided bias feedback feeds back the whole correction of the ticks with a pair of fixes: it
     learns the heading's convergence in the first seconds as a z bias (0.9 deg/s off at 1 Hz) and sees the
     magnetometer's corrections only once a pair. Without the feedback (``[fuser.bias] feedback_enabled = false``)
     1.7 deg, 100 % at 1 Hz. Tried and not kept: learning the bias's heading row from every magnetometer reading by

@@ -12,7 +12,8 @@ estimation and magnetic disturbance rejection", Information Fusion 91, 2023).
 One module per job: :mod:`~fuser.model.imu_check` (IMUs against each other),
 :mod:`~fuser.model.propagation` (gyro integration and prediction), :mod:`~fuser.model.gravity`, :mod:`~fuser.model.heading`,
 :mod:`~fuser.model.attitude` (the updates), :mod:`~fuser.model.velocity` (GNSS velocity aiding of the
-gravity update), :mod:`~fuser.model.field` (the reference field from the WMM), :mod:`~fuser.model.unaided`
+gravity update, its pairs' low-pass in :mod:`~fuser.model.pair_lowpass`), :mod:`~fuser.model.velocity_check` (the fixes'
+check of the state), :mod:`~fuser.model.field` (the reference field from the WMM), :mod:`~fuser.model.unaided`
 (what an unaided accelerometer cannot see, for the published uncertainty), :mod:`~fuser.model.gate` (their
 innovation gate), :mod:`~fuser.model.rest` and :mod:`~fuser.model.bias`,
 :mod:`~fuser.model.body_frame` (readings in the state's body frame),

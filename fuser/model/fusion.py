@@ -54,8 +54,8 @@ from core.quaternion_kernels import yaw_turn
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, MagSample, SourceId
 from fuser import model_error
 from fuser.config import FuserConfig
-from fuser.model import attitude, bias, body_frame, extrapolation, gravity, heading, imu_check, propagation, rest, unaided, velocity
-from fuser.model import vec3
+from fuser.model import (attitude, bias, body_frame, extrapolation, gravity, heading, imu_check, propagation, rest, unaided, vec3,
+                         velocity, velocity_check)
 from fuser.model.diagnostics import DIAGNOSTIC, UpdateDiagnostic, counter_name, decoded, emit
 from fuser.model.field import heading_change_rad, update_field
 from fuser.model.output import OutputPredictor
@@ -310,7 +310,7 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
     unseen_tilt, unseen_heading = unaided.unseen_variances_rad2(p.accel, s.unaided, p.mag.enabled, field)
     disputed_rad2 = 0.0 if autopilot_down else s.gravity.disputed_rad * s.gravity.disputed_rad
     # the GNSS fixes' residuals against the state, beyond what their noise makes: the state at least that far off
-    excess_rad2 = 0.0 if autopilot_down else velocity.attitude_excess_rad2(p.gnss, p.updates, s.velocity, tick_ns)
+    excess_rad2 = 0.0 if autopilot_down else velocity_check.attitude_excess_rad2(p.gnss, p.updates, s.velocity, tick_ns)
     if excess_rad2 > max(disputed_rad2, unseen_tilt):
         disputed_rad2 = excess_rad2
         n_events = _event(event_codes, event_counts, n_events, GNSS_DISPUTES, 1)

@@ -61,7 +61,7 @@ The state itself is not widened when a gated reading is re-anchored: tried, it m
 vertical of sustained turns (the JSBSim Cessna without GNSS 11.1 -> 30.8 deg RMS, the aggressive multirotor
 3.4 -> 5.4), even where the norm's account of the acceleration was taken out first. With GNSS the aided readings
 cannot show a bias that appeared in flight (their body side is low-passed in the frame the biased gyro turns); the
-fixes' residuals against the state can, and are read the same way (:mod:`fuser.model.velocity`, "Checked").
+fixes' residuals against the state can, and are read the same way (:mod:`fuser.model.velocity_check`).
 
 While GNSS velocity aids it, the velocity-aided variant beside this one
 (:func:`fuser.model.velocity.update_gravity_aided`: the world acceleration

@@ -180,7 +180,7 @@ VELOCITY = _record(
     ("recent_ns", "i8"),  # when the newest pair in it was measured (the middle of its interval)
     ("recent_noise_var_m2_s4", "f8"),
     ("recent_noise_cov_m2_s3", "f8"),
-    ("has_residual_lp", "?"),  # the pairs' residuals against the estimate, low-passed in NED (velocity.attitude_excess_rad2)
+    ("has_residual_lp", "?"),  # the pairs' residuals against the estimate, low-passed in NED (fuser.model.velocity_check)
     ("residual_lp_m_s2", "f8", (3,)),  # their acceleration residual a - (R_est f + g e_z)
     ("residual_force_m_s2", "f8", (3,)),  # the specific force over the same pairs, rotated alike (NED), low-passed alike
     ("residual_noise_var_m2_s4", "f8"),  # variance per axis of the GNSS velocity noise left in that low-pass

@@ -105,38 +105,9 @@ is the noise the stream shows; a pair is weighed with the claim or that,
 whichever is larger (``velocity_noise_m_s`` in its diagnostic). After a
 gap the residuals' chain starts again; the noise measured so far is kept.
 
-**Checked.** The low-passed reading above cannot show a drift the gyro
-gives the state: its body side is low-passed in S, which a gyro bias turns
-along with the prediction, so a bias that appears in flight moves reading and
-state together (a 2.9 deg/s x bias step in the simulated hover: 7.5-11.5 deg
-off while every aided innovation was 1-3 deg against a sigma of 4, fused, the
-published uncertainty 3.3 deg). Each pair's residual of the jump check below,
-``r = a - (R_est R_SB^T f + g e_z)`` with ``f`` the pair's own mean force, is
-free of that: it compares the state of now with this interval's
-acceleration, and an attitude error ``d`` makes it ``d x f`` (to within
-``d`` times the bias times the latency). The selected stream's pairs alone
-(consecutive pairs then share a fix, as the noise's recursion counts; an
-autopilot's solution running away beside a receiver read 3 deg of error
-into a right state otherwise). It is low-passed in the world with
-``gnss.residual_lowpass_s``, the force beside it; its noise is the velocity
-noise differenced and low-passed as above (the accelerometer's bias and scale
-lie along ``f`` and do not count: the part across ``f`` is read). Where that
-part, over ``|f|``, is beyond ``updates.innovation_gate_sigma`` times its
-noise, its square less that (:func:`attitude_excess_rad2`) is the least the
-state is off by, and the published attitude covers it as it covers a
-disputed gravity reading (:mod:`fuser.model.gravity`, "Disputed"; counted as
-``gnss_disputes``). The state is not changed by it. Bias step, simulated
-hover, seeds 0-3, the share of the estimates over twice their reported
-uncertainty from 4 to 30 s: 43.6 / 39.0 / 37.6 / 54.7 % before, 0.5 / 0 / 0 /
-12.2 % with it (seed 3's from its start, 9-10 deg off reporting 4 with its
-unlearnt 1.5 deg/s bias, before the step), 0 % on all four once the low-pass
-above started as a running mean; the nominal flights' published uncertainty
-did not move (the 30-s multirotor, aggressive and Cessna flights 3.35 / 3.56 /
-3.03 deg). Tried on seed 0: a 1-s low-pass, 13.5 %; a 3-s
-one, 5.3 % (it lags the error's growth); the noise counted once instead of
-three times, 0 % but every nominal flight 0.14-0.37 deg wider; the
-accelerometer's error (``accel_error_m_s2``) counted as the residual's own,
-15.5 % (at equilibrium the state has taken the bias in, both sides agree).
+**Checked.** The jump check's residual of each pair below shows how far
+the state is off, which this reading cannot (its body side drifts with a
+gyro bias along with the state): :mod:`fuser.model.velocity_check`.
 
 **Faults**, each in the ``velocity`` diagnostics and counted: a message
 without a fix (``no_fix``); a receiver repeating its last solution
@@ -175,14 +146,14 @@ from numba import njit
 from core.bingham_kernels import down_alignment_sq
 from core.observations import _davenport
 from core.quaternion_kernels import from_array, rotation_rows
-from fuser.model import vec3
+from fuser.model import pair_lowpass, vec3, velocity_check
 from fuser.model.diagnostics import (AIDED_3D, AIDED_HORIZONTAL, FUSED, GAP, GATED, GRAVITY, INNOVATION, JUMP, NO_FIX, NO_REASON, NORM,
                                      NOT_AIDED, STALE, UNCONVERGED, UNSELECTED, VELOCITY, Diagnostic, emit, none, of)
 from fuser.model.gate import gate_rad, innovation_gate
 from fuser.model.gravity import drop_lp, no_reading
 from fuser.model.tick import GravityReading, TickContext, VelocityTrack
 
-__all__ = ["attitude_excess_rad2", "raw_world", "tilt_doubt_deg", "track_velocity", "update_gravity_aided"]
+__all__ = ["raw_world", "tilt_doubt_deg", "track_velocity", "update_gravity_aided"]
 
 FIX_2D = 2
 """MAVLink GPS_FIX_TYPE of the first fix that carries a velocity."""
@@ -299,69 +270,6 @@ def _measure_noise(params: np.record, state: np.record, slot: int, difference: t
 
 
 @njit(cache=True, nogil=True)
-def _noise_after(variance: float, covariance: float, alpha: float, span_s: float, noise_m_s: float,
-                 previous_noise_m_s: float) -> tuple:
-    """The velocity noise in a low-pass of differenced fixes after one more: ``y = (1 - a) y + (a / T)(n1 - n0)``,
-    ``n0`` shared with the previous difference (module docstring, "Sigma"); (variance, covariance with ``n1``)."""
-    gain = alpha / span_s
-    keep = 1.0 - alpha
-    variance = (keep * keep * variance + gain * gain * (noise_m_s * noise_m_s + previous_noise_m_s * previous_noise_m_s)
-                - 2.0 * keep * gain * covariance)
-    return variance, gain * (noise_m_s * noise_m_s)
-
-
-@njit(cache=True, nogil=True)
-def _start_alpha(span_s: float, tau_s: float, held_s: float) -> float:
-    """A low-pass step over a pair ``span_s`` long, with ``held_s`` of pairs in it (this one included): the running
-    mean of the pairs until they span ``tau_s``, then the first-order low-pass (``span / tau``), as VQF starts its
-    low-passes (``filterVec``: the mean of the first ``tau / Ts`` samples). A differenced velocity's noise then
-    falls as ``1 / n`` over the first ``n`` pairs (their differences telescope), not as ``(1 - alpha)^n`` after a
-    first pair taken whole (module docstring, "Sigma")."""
-    return min(1.0, max(span_s / tau_s, span_s / held_s))
-
-
-@njit(cache=True, nogil=True)
-def _check_residual(params: np.record, state: np.record, difference: tuple, force_ned_m_s2: tuple, measured_ns: int, span_s: float,
-                    noise_m_s: float, previous_noise_m_s: float, max_age_ns: int) -> None:
-    """One pair's acceleration residual against the estimate (the jump check's ``difference``) and the specific
-    force it was checked with (in NED through the estimate) into the world-frame low-passes
-    :func:`attitude_excess_rad2` reads, with the velocity noise they hold (module docstring, "Checked"); they start
-    again from this pair after ``max_age_s`` without one."""
-    variance, covariance, held_s = state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3, state.residual_s
-    if not state.has_residual_lp or measured_ns - state.residual_ns > max_age_ns:
-        variance, covariance, held_s = 0.0, 0.0, 0.0
-    held_s += span_s
-    alpha = _start_alpha(span_s, params.residual_lowpass_s, held_s)
-    state.residual_s = held_s
-    vec3.store(state.residual_lp_m_s2, vec3.toward(vec3.load(state.residual_lp_m_s2), difference, alpha))
-    vec3.store(state.residual_force_m_s2, vec3.toward(vec3.load(state.residual_force_m_s2), force_ned_m_s2, alpha))
-    state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3 = _noise_after(variance, covariance, alpha, span_s, noise_m_s,
-                                                                                  previous_noise_m_s)
-    state.has_residual_lp, state.residual_ns = True, measured_ns
-
-
-@njit(cache=True, nogil=True)
-def attitude_excess_rad2(params: np.record, updates: np.record, state: np.record, tick_ns: int) -> float:
-    """How far the estimate is off, as the fixes show it (module docstring, "Checked"): the part of the pairs'
-    low-passed acceleration residual across the specific force (an attitude error ``d`` turns ``f`` by ``d x f``;
-    along ``f`` are the accelerometer's scale and bias) over the force, squared, less ``updates.innovation_gate_sigma``
-    squared times the velocity noise left in the low-pass on those two axes (what noise alone makes is not taken
-    for an error); 0 without a pair within ``max_age_s`` and the fix's latency. ``params`` the ``gnss`` group,
-    ``updates`` the ``updates`` group, ``state`` the ``velocity`` record."""
-    if not state.has_residual_lp:
-        return 0.0
-    if tick_ns - state.residual_ns > round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9):
-        return 0.0
-    force = vec3.load(state.residual_force_m_s2)
-    force_sq = vec3.dot(force, force)
-    if not force_sq > 0.0:
-        return 0.0
-    across = vec3.cross(vec3.load(state.residual_lp_m_s2), force)  # |r x f| = |r_across| |f|
-    noise_m2_s4 = updates.innovation_gate_sigma * updates.innovation_gate_sigma * 2.0 * max(state.residual_noise_var_m2_s4, 0.0)
-    return max(vec3.dot(across, across) / force_sq - noise_m2_s4, 0.0) / force_sq
-
-
-@njit(cache=True, nogil=True)
 def _selected(state: np.record, now_measured_ns: int, max_age_ns: int) -> int:
     """The slot of the stream whose pairs aid: among those with a fix within ``max_age``, one with vertical velocity
     first, then a receiver's fix before an autopilot's solution, then the lowest source (``stream_rank``: a
@@ -446,11 +354,11 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         mid_ns = (measured + previous_ns) // 2
         if not has_recent or mid_ns - recent_ns > max_age_ns:
             recent_world = gravity_less_accel
-            recent_var, recent_cov = _noise_after(0.0, 0.0, 1.0, span_s, noise_m_s, previous_noise)
+            recent_var, recent_cov = pair_lowpass.noise_after(0.0, 0.0, 1.0, span_s, noise_m_s, previous_noise)
         else:
             raw_alpha = min(1.0, span_s / params.raw_lowpass_s)
             recent_world = vec3.toward(recent_world, gravity_less_accel, raw_alpha)
-            recent_var, recent_cov = _noise_after(recent_var, recent_cov, raw_alpha, span_s, noise_m_s, previous_noise)
+            recent_var, recent_cov = pair_lowpass.noise_after(recent_var, recent_cov, raw_alpha, span_s, noise_m_s, previous_noise)
         has_recent, recent_ns = True, mid_ns
         has_start, start = _force_at(state, knots_ns, knots, previous_ns)
         has_end, end = _force_at(state, knots_ns, knots, measured)
@@ -472,7 +380,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         outcome, reason = GATED, NO_REASON
         selected = _selected(state, measured, max_age_ns) == slot
         if ratio <= 1.0 and selected:  # one stream's pairs: consecutive ones share a fix, as the noise's recursion counts
-            _check_residual(params, state, difference, expected, measured, span_s, noise_m_s, previous_noise, max_age_ns)
+            velocity_check.check_residual(params, state, difference, expected, measured, span_s, noise_m_s, previous_noise, max_age_ns)
         if ratio > 1.0:
             reason = JUMP
         elif not selected:
@@ -484,10 +392,10 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
                 noise_var, noise_cov, lp_s = 0.0, 0.0, 0.0
                 has_lp, body_lp, world_lp = True, vec3.ZERO, vec3.ZERO
             lp_s += span_s
-            alpha = _start_alpha(span_s, tau_s, lp_s)
+            alpha = pair_lowpass.start_alpha(span_s, tau_s, lp_s)
             body_lp = vec3.toward(body_lp, (-force[0], -force[1], -force[2]), alpha)
             world_lp = vec3.toward(world_lp, gravity_less_accel, alpha)
-            noise_var, noise_cov = _noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous_noise)
+            noise_var, noise_cov = pair_lowpass.noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous_noise)
             vertical, fused, outcome = both_vertical, True, FUSED
         # the pair's account: its acceleration check (values accel_innovation_m_s2, accel_gate_m_s2, interval_s, vertical,
         # velocity_noise_m_s)
