@@ -68,7 +68,8 @@ def attitude_excess_rad2(params: np.record, updates: np.record, state: np.record
     low-passed acceleration residual across the specific force (an attitude error ``d`` turns ``f`` by ``d x f``;
     along ``f`` are the accelerometer's scale and bias) over the force, squared, less ``updates.innovation_gate_sigma``
     squared times the velocity noise left in the low-pass on those two axes (what noise alone makes is not taken
-    for an error); 0 without a pair within ``max_age_s`` and the fix's latency. ``params`` the ``gnss`` group,
+    for an error), at most 1 (a sine, squared); 0 without a pair within ``max_age_s`` and the fix's latency. ``params``
+    the ``gnss`` group,
     ``updates`` the ``updates`` group, ``state`` the ``velocity`` record."""
     if not state.has_residual_lp:
         return 0.0
@@ -80,4 +81,5 @@ def attitude_excess_rad2(params: np.record, updates: np.record, state: np.record
         return 0.0
     across = vec3.cross(vec3.load(state.residual_lp_m_s2), force)  # |r x f| = |r_across| |f|
     noise_m2_s4 = updates.innovation_gate_sigma * updates.innovation_gate_sigma * 2.0 * max(state.residual_noise_var_m2_s4, 0.0)
-    return max(vec3.dot(across, across) / force_sq - noise_m2_s4, 0.0) / force_sq
+    # the part across f over |f| is the sine of the error: at most 1 (a force near 0, in free fall, shows no attitude)
+    return min(max(vec3.dot(across, across) / force_sq - noise_m2_s4, 0.0) / force_sq, 1.0)
