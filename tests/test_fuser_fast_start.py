@@ -147,9 +147,10 @@ def test_the_pairs_of_fixes_are_what_raw_readings_measure_until_they_are_old():
     assert not raw_world(gnss, accel, state, state.recent_ns + 1_150_000_001)[0]
     assert not raw_world(_gnss_off(), accel, state, 1_100_000_000)[0]
     assert not raw_world(gnss, accel, _paired([(10.0, 0.0, 0.0), (10.0, 0.5, 0.0)], 0.3).velocity, 1_100_000_000)[0]
-    # a third fix: the low-pass over gnss.raw_lowpass_s (alpha = 0.1 / 0.3), toward a = (0, 2, 0)
+    # a third fix, a = (0, 2, 0): the low-pass over gnss.raw_lowpass_s (0.3 s) starts as the running mean of its pairs
     three = _paired([(10.0, 0.0, 0.0), (10.0, 0.5, 0.0), (10.0, 0.7, 0.0)], 0.05).velocity
-    np.testing.assert_allclose(three.recent_world_m_s2, [0.0, -5.0 + (1.0 / 3.0) * (5.0 - 2.0), G], atol=1e-9)
+    np.testing.assert_allclose(three.recent_world_m_s2, [0.0, -(5.0 + 2.0) / 2.0, G], atol=1e-9)
+    assert three.recent_noise_var_m2_s4 == pytest.approx(2.0 * 0.05 ** 2 / 0.2 ** 2, rel=1e-9)  # (v_2 - v_0) / 0.2 s
 
 
 def test_without_a_heading_measurement_the_tilt_alone_decides_convergence():

@@ -157,9 +157,9 @@ def test_a_start_in_a_sustained_turn_finds_the_attitude(start_s):
     turn's acceleration taken out disagrees beyond the gate, at the first pair or one of the next before the state
     converges), the fast start runs again with the acceleration taken out and the whole field as a vector, and the
     field stays a vector until the aided correction has settled (fuser/model/gravity.py, heading.py). Measured
-    (after the first second: RMS total, largest, the truth inside the 90 % region; after 5 s: largest): 1.3-2.3 deg,
-    3.9-11.1, 100 %; 1.6-4.0 deg (1.4-2.3, 3.8-13.7, 100 %, 1.9-3.9 before the aided low-pass started as a running
-    mean, fuser/model/velocity.py, "Sigma"). Before (2026-12-06) only the 28-s start found it (4.1 deg, 98 %); from 22, 25, 31,
+    (after the first second: RMS total, largest, the truth inside the 90 % region; after 5 s: largest): 1.1-1.8 deg,
+    2.7-9.3, 100 %; 1.6-3.6 deg (1.4-2.3, 3.8-13.7, 100 %, 1.9-3.9 before the aided and raw low-passes started as
+    running means, fuser/model/pair_lowpass.py). Before (2026-12-06) only the 28-s start found it (4.1 deg, 98 %); from 22, 25, 31,
     34 and 40 s the estimate stayed 7-21 deg RMS off (largest 15-57) reporting 3.5-5.4, inside the 90 % region on
     0-89 % of the ticks. The truth is JSBSim's."""
     flight = FLIGHTS["fixedwing"]()

@@ -180,6 +180,7 @@ VELOCITY = _record(
     ("recent_ns", "i8"),  # when the newest pair in it was measured (the middle of its interval)
     ("recent_noise_var_m2_s4", "f8"),
     ("recent_noise_cov_m2_s3", "f8"),
+    ("recent_s", "f8"),  # seconds of pairs that low-pass holds since it started (its running mean until raw_lowpass_s)
     ("has_residual_lp", "?"),  # the pairs' residuals against the estimate, low-passed in NED (fuser.model.velocity_check)
     ("residual_lp_m_s2", "f8", (3,)),  # their acceleration residual a - (R_est f + g e_z)
     ("residual_force_m_s2", "f8", (3,)),  # the specific force over the same pairs, rotated alike (NED), low-passed alike
