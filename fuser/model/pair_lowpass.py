@@ -9,9 +9,10 @@ consecutive differences share a fix, so their noise telescopes. Used by the aide
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
-__all__ = ["noise_after", "start_alpha"]
+__all__ = ["advance", "max_age_with_latency_ns", "noise_after", "start_alpha"]
 
 
 @njit(cache=True, nogil=True)
@@ -34,3 +35,24 @@ def start_alpha(span_s: float, tau_s: float, held_s: float) -> float:
     falls as ``1 / n`` over the first ``n`` pairs (their differences telescope), not as ``(1 - alpha)^n`` after a
     first pair taken whole (:mod:`fuser.model.velocity`, "Sigma")."""
     return min(1.0, max(span_s / tau_s, span_s / held_s))
+
+
+@njit(cache=True, nogil=True)
+def advance(restart: bool, held_s: float, variance: float, covariance: float, span_s: float, tau_s: float, noise_m_s: float,
+            previous_noise_m_s: float) -> tuple:
+    """One more pair ``span_s`` long into a low-pass of time constant ``tau_s`` that holds ``held_s`` of pairs and the
+    velocity noise (``variance``, ``covariance``) so far; ``restart``: it starts again from this pair (its step then 1).
+    Returns (the step ``alpha``, ``held_s``, ``variance``, ``covariance`` after it)."""
+    if restart:
+        held_s, variance, covariance = 0.0, 0.0, 0.0
+    held_s += span_s
+    alpha = start_alpha(span_s, tau_s, held_s)
+    variance, covariance = noise_after(variance, covariance, alpha, span_s, noise_m_s, previous_noise_m_s)
+    return alpha, held_s, variance, covariance
+
+
+@njit(cache=True, nogil=True)
+def max_age_with_latency_ns(params: np.record) -> int:
+    """How long after it was measured a pair still counts (``params`` the ``gnss`` group): ``max_age_s`` and the longer
+    of the fixes' latencies."""
+    return round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9)

@@ -228,7 +228,7 @@ def _knots(params: np.record, state: np.record, knots_ns: np.ndarray, knots: np.
     last_ns = knots_ns[last]
     integral = (knots[last, 0], knots[last, 1], knots[last, 2])
     force = force_s_m_s2 if has_force else (knots[last, 3], knots[last, 4], knots[last, 5])
-    horizon_ns = tick_ns - round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9) - 2 * dt_ns
+    horizon_ns = tick_ns - pair_lowpass.max_age_with_latency_ns(params) - 2 * dt_ns
     # the first knot kept is the last one before the horizon (the horizon moves a tick per tick: a step or two)
     dropped = 0
     while dropped + 1 < count and knots_ns[(first + dropped + 1) % capacity] < horizon_ns:
@@ -352,14 +352,10 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         gravity_less_accel = (-accel[0], -accel[1], g - accel[2])  # g e_z - a
         # aiding or not, into what the gravity update's raw readings measure (gravity.update_gravity)
         mid_ns = (measured + previous_ns) // 2
-        if not has_recent or mid_ns - recent_ns > max_age_ns:
-            recent_world, recent_s = gravity_less_accel, span_s
-            recent_var, recent_cov = pair_lowpass.noise_after(0.0, 0.0, 1.0, span_s, noise_m_s, previous_noise)
-        else:
-            recent_s += span_s
-            raw_alpha = pair_lowpass.start_alpha(span_s, params.raw_lowpass_s, recent_s)
-            recent_world = vec3.toward(recent_world, gravity_less_accel, raw_alpha)
-            recent_var, recent_cov = pair_lowpass.noise_after(recent_var, recent_cov, raw_alpha, span_s, noise_m_s, previous_noise)
+        restart_recent = not has_recent or mid_ns - recent_ns > max_age_ns
+        raw_alpha, recent_s, recent_var, recent_cov = pair_lowpass.advance(restart_recent, recent_s, recent_var, recent_cov, span_s,
+                                                                           params.raw_lowpass_s, noise_m_s, previous_noise)
+        recent_world = gravity_less_accel if restart_recent else vec3.toward(recent_world, gravity_less_accel, raw_alpha)
         has_recent, recent_ns = True, mid_ns
         has_start, start = _force_at(state, knots_ns, knots, previous_ns)
         has_end, end = _force_at(state, knots_ns, knots, measured)
@@ -389,14 +385,13 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         elif not has_lp and not may_aid:
             reason = UNCONVERGED
         else:
-            if not has_lp:  # the low-pass starts from this pair: unbiased, its noise counted
-                noise_var, noise_cov, lp_s = 0.0, 0.0, 0.0
+            # the low-pass starts from this pair if it held none: unbiased, its noise counted
+            alpha, lp_s, noise_var, noise_cov = pair_lowpass.advance(not has_lp, lp_s, noise_var, noise_cov, span_s, tau_s, noise_m_s,
+                                                                     previous_noise)
+            if not has_lp:
                 has_lp, body_lp, world_lp = True, vec3.ZERO, vec3.ZERO
-            lp_s += span_s
-            alpha = pair_lowpass.start_alpha(span_s, tau_s, lp_s)
             body_lp = vec3.toward(body_lp, (-force[0], -force[1], -force[2]), alpha)
             world_lp = vec3.toward(world_lp, gravity_less_accel, alpha)
-            noise_var, noise_cov = pair_lowpass.noise_after(noise_var, noise_cov, alpha, span_s, noise_m_s, previous_noise)
             vertical, fused, outcome = both_vertical, True, FUSED
         # the pair's account: its acceleration check (values accel_innovation_m_s2, accel_gate_m_s2, interval_s, vertical,
         # velocity_noise_m_s)
@@ -450,7 +445,7 @@ def raw_world(params: np.record, gravity_params: np.record, state: np.record, ti
     within the pairs' age times the turn rate (2 deg at 0.1 rad/s and 0.35 s)."""
     if not params.enabled or not state.has_recent:
         return False, vec3.ZERO, 0.0
-    if tick_ns - state.recent_ns > round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9):
+    if tick_ns - state.recent_ns > pair_lowpass.max_age_with_latency_ns(params):
         return False, vec3.ZERO, 0.0
     noise_m_s2 = math.sqrt(max(state.recent_noise_var_m2_s4, 0.0))
     x, y, z = vec3.load(state.recent_world_m_s2)

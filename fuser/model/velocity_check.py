@@ -49,16 +49,12 @@ def check_residual(params: np.record, state: np.record, difference: tuple, force
     force it was checked with (in NED through the estimate) into the world-frame low-passes
     :func:`attitude_excess_rad2` reads, with the velocity noise they hold (module docstring); they start
     again from this pair after ``max_age_s`` without one."""
-    variance, covariance, held_s = state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3, state.residual_s
-    if not state.has_residual_lp or measured_ns - state.residual_ns > max_age_ns:
-        variance, covariance, held_s = 0.0, 0.0, 0.0
-    held_s += span_s
-    alpha = pair_lowpass.start_alpha(span_s, params.residual_lowpass_s, held_s)
-    state.residual_s = held_s
+    restart = not state.has_residual_lp or measured_ns - state.residual_ns > max_age_ns
+    alpha, state.residual_s, state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3 = pair_lowpass.advance(
+        restart, state.residual_s, state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3, span_s, params.residual_lowpass_s,
+        noise_m_s, previous_noise_m_s)
     vec3.store(state.residual_lp_m_s2, vec3.toward(vec3.load(state.residual_lp_m_s2), difference, alpha))
     vec3.store(state.residual_force_m_s2, vec3.toward(vec3.load(state.residual_force_m_s2), force_ned_m_s2, alpha))
-    state.residual_noise_var_m2_s4, state.residual_noise_cov_m2_s3 = pair_lowpass.noise_after(variance, covariance, alpha, span_s,
-                                                                                            noise_m_s, previous_noise_m_s)
     state.has_residual_lp, state.residual_ns = True, measured_ns
 
 
@@ -68,12 +64,11 @@ def attitude_excess_rad2(params: np.record, updates: np.record, state: np.record
     low-passed acceleration residual across the specific force (an attitude error ``d`` turns ``f`` by ``d x f``;
     along ``f`` are the accelerometer's scale and bias) over the force, squared, less ``updates.innovation_gate_sigma``
     squared times the velocity noise left in the low-pass on those two axes (what noise alone makes is not taken
-    for an error), at most 1 (a sine, squared); 0 without a pair within ``max_age_s`` and the fix's latency. ``params``
-    the ``gnss`` group,
-    ``updates`` the ``updates`` group, ``state`` the ``velocity`` record."""
+    for an error), at most 1 (a sine, squared); 0 without a pair within ``max_age_s`` and the fix's latency.
+    ``params`` the ``gnss`` group, ``updates`` the ``updates`` group, ``state`` the ``velocity`` record."""
     if not state.has_residual_lp:
         return 0.0
-    if tick_ns - state.residual_ns > round((params.max_age_s + max(params.latency_ms, params.filtered_latency_ms) * 1e-3) * 1e9):
+    if tick_ns - state.residual_ns > pair_lowpass.max_age_with_latency_ns(params):
         return 0.0
     force = vec3.load(state.residual_force_m_s2)
     force_sq = vec3.dot(force, force)
