@@ -260,7 +260,7 @@ class FusionLoop:
         self.counters["samples"] += 1
         if self._predicted_through(sample, placed) and self._last_result is not None and receive_ns > self._last_stamp_ns:
             # none where a tick's estimate already has this instant (due just as the sample arrived): stamps only go forward
-            return [self._estimate(receive_ns, self._output.at(receive_ns), self._last_result, (), predicted=True)]  # type: ignore[union-attr]
+            return [self._estimate(receive_ns, *self._output.at(receive_ns), self._last_result, (), predicted=True)]  # type: ignore[union-attr]
         return []
 
     def _predicted_through(self, sample: Sample, placed_ns: int) -> bool:
@@ -309,22 +309,25 @@ class FusionLoop:
         output = self._output
         if output is not None:  # extrapolation.every_imu_sample: the tick's state turned through the samples already here
             # stamped when due, or just after the last prediction's stamp if a sample received after that went first
-            stamp, published = max(tick_ns + self._wait_ns, self._last_stamp_ns + 1), result.published
+            stamp, published, spread_deg = max(tick_ns + self._wait_ns, self._last_stamp_ns + 1), result.published, None
             self.model.start_output(output)
             output.advance_through([(sample.gyro_rad_s, placed) for placed, _, sample in self._pending if self._is_reference_imu(sample)])
             if output.active:
-                published = output.at(stamp)
-        else:
-            stamp, published = tick_ns + result.ahead_ns, result.published  # the time it is for (fuser.model.extrapolation)
-        estimate = self._estimate(stamp, published, result, result.diagnostics)
+                published, spread_deg = output.at(stamp)
+        else:  # the time it is for (fuser.model.extrapolation)
+            stamp, published, spread_deg = tick_ns + result.ahead_ns, result.published, None
+        estimate = self._estimate(stamp, published, spread_deg, result, result.diagnostics)
         for d in estimate.diagnostics:
             self._latest_diagnostics[d["update"]] = {"t_ns": tick_ns, **d}
         return estimate
 
-    def _estimate(self, stamp_ns: int, published: Bingham, result: TickResult, diagnostics: tuple, predicted: bool = False) -> Estimate:
-        """The wire estimate of ``published`` (the last tick's ``result``, or turned from it) stamped ``stamp_ns``."""
+    def _estimate(self, stamp_ns: int, published: Bingham, spread_deg: float | None, result: TickResult, diagnostics: tuple,
+                  predicted: bool = False) -> Estimate:
+        """The wire estimate of ``published`` (the last tick's ``result``, or turned from it, and widened if
+        ``spread_deg``, its RMS angle, is given) stamped ``stamp_ns``."""
         offset = None if self.reference_imu is None else self.timeline.offsets[(self.reference_imu, ImuSample)]
-        turned = TickResult(published, result.uncertainty_deg, diagnostics, result.counters)  # a right rotation keeps the spread
+        # a right rotation keeps the tick's spread; a widened prediction has its own
+        turned = TickResult(published, result.uncertainty_deg if spread_deg is None else spread_deg, diagnostics, result.counters)
         self._last_stamp_ns = stamp_ns
         return estimate_of(stamp_ns, turned, self._last_counters, None if offset is None else stamp_ns - offset, predicted)
 

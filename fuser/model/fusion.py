@@ -334,6 +334,7 @@ def tick(params: np.ndarray, state: np.ndarray, knots_ns: np.ndarray, knots: np.
     for i in range(4):
         o.lead_rotation[i] = ahead.rotation[i]
     o.imu_fault = imu_fault
+    o.counted_until_ns = tick_ns + carry_ns
     return n_diag, n_events, uncertainty_deg
 
 

@@ -50,6 +50,7 @@ TICK_OUTPUT = np.dtype([
     ("has_lead_rotation", "?"),
     ("lead_rotation", "f8", (4,)),  # the body rotation the lead applied, which the output predictor takes back
     ("imu_fault", "?"),  # an IMU kept out lately: the output predictor does not start from this tick
+    ("counted_until_ns", "i8"),  # the published variance counts the held rate's error up to here (the tick plus its carry)
 ], align=True)
 """What the compiled tick leaves for the output predictor (:func:`fuser.model.output.started`): the published
 distribution, the lead, and whether an IMU was kept out."""
