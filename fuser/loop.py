@@ -275,7 +275,8 @@ class FusionLoop:
         """The reference IMU's samples turn the output predictor, and in a slow gyro stream (a telemetry link's
         IMUs at a few hertz each) the vehicle's other IMUs' too: the tick merges them into one stream, and between
         the reference's samples they are the only rate there is (``fuser/model/output.py``)."""
-        return isinstance(sample, ImuSample) and (sample.source == self.reference_imu or self._output is not None and self._output.slow)
+        slow = self._output is not None and self._output.slow
+        return isinstance(sample, ImuSample) and (sample.source == self.reference_imu or slow)
 
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""

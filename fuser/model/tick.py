@@ -53,7 +53,7 @@ TICK_OUTPUT = np.dtype([
     ("counted_until_ns", "i8"),  # the published variance counts the held rate's error up to here (the tick plus its carry)
 ], align=True)
 """What the compiled tick leaves for the output predictor (:func:`fuser.model.output.started`): the published
-distribution, the lead, and whether an IMU was kept out."""
+distribution, the lead, whether an IMU was kept out, and up to when the published variance counts the held rate."""
 
 
 @dataclass(frozen=True, slots=True)
