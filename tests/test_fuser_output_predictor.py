@@ -347,3 +347,17 @@ def test_in_a_fast_stream_a_prediction_keeps_the_ticks_concentrations():
     """The same hold in a 200-Hz stream (its samples follow the rate; a long hold there is a dropout the tick
     counts): the tick's concentrations, to the bit."""
     np.testing.assert_array_equal(np.sort(_held(0.005).Z), np.sort(_base().Z))
+
+
+@pytest.mark.parametrize("hold_s", [3600.0, 2.0**62 * 1e-9])
+def test_a_hold_of_hours_publishes_the_uniform_distribution_not_a_nan(hold_s):
+    """A slow stream's prediction read an hour (or the timeline's end) after its sample: the gap rate's error makes
+    it uniform on the rotations, whose RMS angle ``2 asin(sqrt(1 - E[w^2]))`` with ``E[w^2] = 1/4`` is 120 deg
+    (closed form); every value finite, the directions still orthonormal."""
+    track = gyro_part(last_ns=0, last_rate_rad_s=(1.0, 0.0, 0.0), covered_ns=100 * MS, held_rad=(0.1, 0.0, 0.0), has_interval_s=True,
+                      interval_s=0.3, has_slope=True, walk2_rad2_s3=4.0, walk2_ns=0)
+    M, Z = np.empty((4, 4)), np.empty(4)
+    spread_deg = at(GYRO, _started(_base(), None, track, np.zeros(3), counted_until_ns=105 * MS), round(hold_s * 1e9), 0, M, Z)
+    assert np.isfinite(M).all() and np.isfinite(Z).all() and np.all(Z <= 0.0)
+    np.testing.assert_allclose(M.T @ M, np.eye(4), atol=1e-12)
+    assert spread_deg == pytest.approx(math.degrees(2.0 * math.asin(math.sqrt(0.75))), abs=1e-4)  # Z within 1e-6 of 0
