@@ -266,17 +266,16 @@ class FusionLoop:
     def _predicted_through(self, sample: Sample, placed_ns: int) -> bool:
         """Turn the output predictor through ``sample`` if it turns it (:meth:`_turns_prediction`); True if it is the
         reference IMU's and the prediction now ends there."""
-        if self._output is None or not self._turns_prediction(sample):
+        if self._output is None or not self._turns_prediction(sample, self._output.slow):
             return False
         ended = self._output.advance(sample.gyro_rad_s, placed_ns)  # False if the prediction has stopped
         return ended and sample.source == self.reference_imu
 
-    def _turns_prediction(self, sample: Sample) -> bool:
-        """The reference IMU's samples turn the output predictor, and in a slow gyro stream (a telemetry link's
+    def _turns_prediction(self, sample: Sample, slow: bool) -> bool:
+        """The reference IMU's samples turn the output predictor, and in a ``slow`` gyro stream (a telemetry link's
         IMUs at a few hertz each) the vehicle's other IMUs' too: the tick merges them into one stream, and between
         the reference's samples they are the only rate there is (``fuser/model/output.py``)."""
-        slow = self._output is not None and self._output.slow
-        return isinstance(sample, ImuSample) and (sample.source == self.reference_imu or slow)
+        return isinstance(sample, ImuSample) and (slow or sample.source == self.reference_imu)
 
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
@@ -317,7 +316,8 @@ class FusionLoop:
             # stamped when due, or just after the last prediction's stamp if a sample received after that went first
             stamp, published, spread_deg = max(tick_ns + self._wait_ns, self._last_stamp_ns + 1), result.published, None
             self.model.start_output(output)
-            output.advance_through([(sample.gyro_rad_s, placed) for placed, _, sample in self._pending if self._turns_prediction(sample)])
+            slow = output.slow
+            output.advance_through([(sample.gyro_rad_s, placed) for placed, _, sample in self._pending if self._turns_prediction(sample, slow)])
             if output.active:
                 published, spread_deg = output.at(stamp)
         else:  # the time it is for (fuser.model.extrapolation)
