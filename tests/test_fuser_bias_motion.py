@@ -6,6 +6,7 @@ from typing import Callable
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from core import quaternion as quat
 from core.bingham import Bingham
@@ -277,6 +278,7 @@ def test_the_bias_steps_change_only_the_fields_they_update():
             assert not np.array_equal(state[name], defaults[name]), name
     evidence = TiltEvidence(INTERVAL / TAU, INTERVAL, math.radians(0.5) ** 2)
     turned = quat.from_rotvec([1e-4, 0.0, 0.0])
+    yawed = quat.from_rotvec([0.0, 0.0, 1e-4])
     rest = part("rest", gyro_lp_rad_s=np.array([0.01, 0.0, 0.0]))
 
     def after(step: Callable[[np.record], None]) -> np.record:
@@ -290,6 +292,7 @@ def test_the_bias_steps_change_only_the_fields_they_update():
                             {"estimate_rad_s", "covariance_rad2_s2"}),
         "integral_feedback": (after(lambda b: bias.integral_feedback(P.bias, b, _q(quat.IDENTITY), _q(turned), 0.01)),
                               {"estimate_rad_s", "covariance_rad2_s2"}),
+        "heading_feedback": (after(lambda b: bias.heading_feedback(P.bias, b, _q(quat.IDENTITY), _q(yawed), 40.0)), {"estimate_rad_s"}),
         "measure_bias": (after(lambda b: measure_bias(P.rest, rest, b, 0.01)), {"estimate_rad_s", "covariance_rad2_s2"}),
         "low_pass": (_low_passed(state.copy(), turned, TAU, INTERVAL, True, 0.5, 0.5), {"rotation_lp", "rotated_lp_rad_s", "tilt_settled_s"}),
     }
@@ -298,3 +301,15 @@ def test_the_bias_steps_change_only_the_fields_they_update():
             same = np.array_equal(changed_state[name], state[name])
             assert same != (name in changed), (step, name)
 
+
+def test_a_magnetometer_reading_alone_feeds_back_its_heading_correction_about_down():
+    """:func:`bias.heading_feedback` from a level prediction corrected by the body rotation ``c`` = (roll, 0, a):
+    the bias moves by ``-(c . d) d / tau``, ``d`` world down in the corrected body frame (scipy), its covariance
+    unchanged; the roll part is not fed back (no aided reading measured it)."""
+    tau, c = 40.0, np.array([3e-4, 0.0, 2e-4])
+    start = part("bias", estimate_rad_s=np.array([0.001, 0.002, 0.003]), covariance_rad2_s2=1e-4 * np.eye(3))
+    fed = start.copy()
+    bias.heading_feedback(P.bias, fed, _q(quat.IDENTITY), _q(quat.from_rotvec(c)), tau)
+    d = Rotation.from_rotvec(c).inv().apply([0.0, 0.0, 1.0])
+    np.testing.assert_allclose(fed.estimate_rad_s, start.estimate_rad_s - np.dot(c, d) * d / tau, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(fed.covariance_rad2_s2, start.covariance_rad2_s2)

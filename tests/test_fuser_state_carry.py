@@ -38,6 +38,7 @@ G = AccelSettings().gravity_m_s2
 P = params()
 TICK = TickContext(0.01, 1e-7, 1.0, 0.8)
 TILT = tuple(quat.from_axis_angle([1.0, 0.0, 0.0], math.radians(2.0)))
+YAW = tuple(quat.from_axis_angle([0.0, 0.0, 1.0], math.radians(2.0)))
 IDENTITY = (1.0, 0.0, 0.0, 0.0)
 ZERO = (0.0, 0.0, 0.0)
 
@@ -259,6 +260,7 @@ BIAS_STEPS = {
                                                        HeadingEvidence(0.002, 0.01, 0.02, 10.0), 0.0, 0.0),
                         {"estimate_rad_s", "covariance_rad2_s2"}),
     "integral_feedback": (lambda s: bias.integral_feedback(P.bias, s.bias, IDENTITY, TILT, 0.01), {"estimate_rad_s", "covariance_rad2_s2"}),
+    "heading_feedback": (lambda s: bias.heading_feedback(P.bias, s.bias, IDENTITY, YAW, 40.0), {"estimate_rad_s"}),
     "learn_from_tick aided": (lambda s: _learn_from_tick(s, True, False), STAGES | {"tilt_settled_s", "estimate_rad_s", "covariance_rad2_s2"}),
     "learn_from_tick plain": (lambda s: _learn_from_tick(s, False, False),
                               STAGES | {"tilt_aided", "tilt_settled_s", "estimate_rad_s", "covariance_rad2_s2"}),
