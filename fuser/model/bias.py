@@ -105,7 +105,7 @@ with 10 / 5 / 1 Hz fixes: 2.32 / 2.90 (the truth in the 90 % region on 81 %
 of the ticks) / 11.50 deg (48 %) -> 0.89 / 0.92 / 2.75 deg, all 100 %; the
 README table's 4-min Cessna 1.98 / 1.84 / 1.45 -> 1.42 / 1.32 / 1.63; the
 multirotor's flights (the table's and the short scenarios', seeds 0, 3, 7)
-unchanged, its golden logs to the bit. The same while the autopilot's
+unchanged, its golden logs to the bit. The feedback runs the same way while the autopilot's
 attitude is in use (a telemetry link's slow IMU): its corrections are not
 modelled either, and not learning from them at all let the published
 uncertainty of the telemetry flight (tests/test_fuser_slow_link.py) grow
