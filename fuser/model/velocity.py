@@ -414,7 +414,7 @@ def track_velocity(params: np.record, gravity_params: np.record, updates: np.rec
         has_lp, body_lp, world_lp = False, vec3.ZERO, vec3.ZERO
     # moving: a fix still fresh at this tick (measured within max_age_s plus its latency) is fast; a stream that stopped
     # in flight is not taken as moving for ever (the rest detector would never run again)
-    fresh_ns = max_age_ns + round(max(params.latency_ms, params.filtered_latency_ms) * 1e6)
+    fresh_ns = pair_lowpass.max_age_with_latency_ns(params)
     moving = False
     for k in range(state.stream_seen.shape[0]):
         if state.stream_seen[k] and tick_ns - state.stream_measured_ns[k] <= fresh_ns:
