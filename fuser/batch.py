@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Sequence, TextIO
 
 from fuser.config import FuserConfig
+from fuser.errors import log_file_problem
 
 __all__ = ["LogResult", "LogTask", "add_replay_arguments", "command", "format_summary", "is_batch", "output_paths",
            "run_batch", "run_task"]
@@ -116,8 +117,9 @@ def run_task(task: LogTask) -> LogResult:
     """Replay one log and score it; any error becomes a failed result (this runs in a worker)."""
     from fuser.replay import replay
 
-    if not Path(task.log).is_file():
-        return _failed(task, "no such file")
+    problem = log_file_problem(task.log)
+    if problem is not None:
+        return _failed(task, problem)
     try:
         summary = replay(task.log, task.output, task.config, progress=None)  # a log with nothing to fuse raises
         error_deg, reference = _score(task.output)

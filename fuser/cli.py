@@ -43,7 +43,7 @@ from drivers.base import SourceError
 from drivers.scenarios import SCENARIOS
 from fuser import batch
 from fuser.config import FuserConfig, load_config
-from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError, require_package
+from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError, check_log_file, require_package
 from fuser.outputs import add_options as add_output_options
 from fuser.outputs import mavlink_connection
 
@@ -683,8 +683,7 @@ def _print_not_imported(source: str, skipped: dict[str, int]) -> None:
 def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     from fuser.importers import read_sensor_log, write_mcap
 
-    if not Path(args.source).is_file():
-        raise UsageError(f"import: no such file: {args.source}")
+    check_log_file(args.source, "import")
     _check_output(args.output, "--output")
     cfg_out = str(Path(args.output).with_suffix(".toml")) if args.config_out is None else (args.config_out or None)
     if cfg_out is not None:

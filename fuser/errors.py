@@ -8,7 +8,10 @@ terms (which file, which port, which option).
 
 from __future__ import annotations
 
-__all__ = ["EXIT_RUNTIME", "EXIT_USAGE", "FuserError", "NotALogError", "UsageError", "require_package"]
+from pathlib import Path
+
+__all__ = ["EXIT_RUNTIME", "EXIT_USAGE", "FuserError", "NotALogError", "UsageError", "check_log_file", "log_file_problem",
+           "require_package"]
 
 EXIT_RUNTIME = 1
 """It started and failed: a link or port that cannot be opened, a log with nothing readable, a write that failed."""
@@ -31,6 +34,21 @@ class UsageError(FuserError):
 
 class NotALogError(UsageError, ValueError):
     """The file given as a log is not one at all (empty, random bytes, text, another format)."""
+
+
+def log_file_problem(path: str | Path) -> str | None:
+    """What keeps ``path``, given as a log to read, from being read as one: a folder, or nothing there; None for a
+    file. Asked before anything opens it: pymavlink would take a missing .tlog for a serial port."""
+    log = Path(path)
+    return None if log.is_file() else "a folder, not a log file" if log.is_dir() else "no such log file"
+
+
+def check_log_file(path: str | Path, what: str = "") -> None:
+    """:class:`UsageError` naming :func:`log_file_problem`'s problem and ``path`` (``what``: the command that reads
+    it, put before the message)."""
+    problem = log_file_problem(path)
+    if problem is not None:
+        raise UsageError(f"{what + ': ' if what else ''}{problem}: {path}")
 
 
 def require_package(module: str, extra: str, what: str) -> None:

@@ -20,7 +20,6 @@ is left behind (it is written under a temporary name and renamed at the end).
 
 from __future__ import annotations
 
-import errno
 import glob
 import math
 import os
@@ -37,7 +36,7 @@ from typing import TYPE_CHECKING, Iterator, TextIO
 from drivers.samples import Sample
 from fuser.codec import Estimate, decode_sample, loads
 from fuser.config import FuserConfig
-from fuser.errors import FuserError, NotALogError
+from fuser.errors import FuserError, NotALogError, check_log_file
 from fuser.importers import import_log, is_importable
 from fuser.inputs import InputReport, TlogInputs
 from fuser.mcap_scan import RawMessage, Skipped
@@ -232,8 +231,7 @@ def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: Text
     ``progress``: where to draw a progress bar (only if it is a terminal).
     """
     log, out = Path(log), Path(out)
-    if not log.is_file():  # before pymavlink takes a missing .tlog for a serial port
-        raise FileNotFoundError(errno.ENOENT, "no such log file", str(log))
+    check_log_file(log)
     if is_importable(log):
         return _replay_imported(log, out, config, progress)
     return _replay(log, out, config, progress, log.name)

@@ -143,7 +143,9 @@ def test_summary_counts_and_errors(logs, tmp_path):
     assert tlog.ok and tlog.samples == logs["tlog_packets"] and tlog.error_deg is None  # a .tlog of IMU only: no reference
     assert not broken.ok and "nothing to replay" in broken.reason and "no record could be read" in broken.reason
     assert not Path(broken.output).exists()
-    assert not missing.ok and missing.reason == "no such file"
+    assert not missing.ok and missing.reason == "no such log file"
+    folder = batch.run_task(batch.LogTask(str(tmp_path), str(tmp_path / "folder.mcap"), FuserConfig()))
+    assert not folder.ok and folder.reason == "a folder, not a log file"
     lines = batch.format_summary(results, wall_s=2.0)
     assert len(lines) == 6 and "\n" not in "".join(lines)
     assert lines[1].split()[:3] == [str(HOVER), "ok", f"{hover.samples:,}"]

@@ -204,7 +204,9 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "config-unknown-key": (["replay", str(LOG), "-o", "out.mcap", "--config", "unknown.toml"], 2,
                            ("bad configuration: unknown.toml: fuser.mag_sigma is not a setting",)),
     "import-config": (["import", "x.ulg", "-o", "x.mcap", "--config", "c.toml"], 2, ("import does not take --config",)),
-    "import-missing-file": (["import", "x.ulg", "-o", "x.mcap"], 2, ("x.ulg",)),
+    "import-missing-file": (["import", "x.ulg", "-o", "x.mcap"], 2, ("import: no such log file: x.ulg",)),
+    "import-a-folder": (["import", "adir", "-o", "x.mcap"], 2, ("import: a folder, not a log file: adir",)),
+    "replay-a-folder": (["replay", "adir", "-o", "x.mcap"], 2, ("a folder, not a log file: adir",)),
     "listen-no-zenoh": (["listen", "--no-zenoh"], 2, ("listen does not take --no-zenoh",)),
     "listen-rate": (["listen", "--rate", "5"], 2, ("listen does not take --rate 5",)),
     "report-rate-before-log": (["report", "--rate", "5", str(LOG)], 2, ("report does not take --rate (see",)),  # 5 was taken as the log
