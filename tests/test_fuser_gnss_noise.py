@@ -22,6 +22,15 @@ low-pass starts as the running mean of its pairs (:mod:`fuser.model.velocity`, "
 0.5 m/s 1.6-4.7 deg reporting 4.6-5.5, 99-100 %. Since the raw readings' low-pass (``gnss.raw_lowpass_s``) starts as
 a running mean too: 0.5 m/s 1.0-3.9 deg, 100 %, seven seeds of eight restarting on their first pair (all eight
 before); 0.25 m/s unchanged.
+
+Tried (2026-12-07, stop 34) and not kept: a restart confirmed by a later pair (the first disagreement waiting, the
+published tilt covering it, until the next pair's acceleration disagrees too or agrees). At 0.5 m/s two seeds of
+eight restarted instead of seven, but the other five were less accurate after 5 s: 1.03-3.90 deg (mean 2.06) ->
+1.22-5.23 (mean 2.43), 98-100 % covered; seed 7 2.00 -> 3.34. Without the restart the state kept the tilt its fast
+start had converged to, and the aided corrections that followed taught the gyro bias 0.4-0.5 deg/s of x and y in
+2-6 s (0-0.1 with the restart, whose recovery the bias does not learn from); holding the bias's learning until the
+stream's noise had been measured over 5 or 20 pairs did not change that. The restart is the better start here, so
+the strict xfail below stays as the aim it was, not a defect in the figures above.
 """
 
 from __future__ import annotations
