@@ -713,6 +713,7 @@ def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
 
 def _cmd_report(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     require_package("matplotlib", "report", "report")
+    check_log_file(args.log, "report")
     _check_output_folder(args.output, "--output")
     from fuser.report import write_report
 

@@ -207,6 +207,8 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "import-missing-file": (["import", "x.ulg", "-o", "x.mcap"], 2, ("import: no such log file: x.ulg",)),
     "import-a-folder": (["import", "adir", "-o", "x.mcap"], 2, ("import: a folder, not a log file: adir",)),
     "replay-a-folder": (["replay", "adir", "-o", "x.mcap"], 2, ("a folder, not a log file: adir",)),
+    "report-a-folder": (["report", "adir", "-o", "rep"], 2, ("report: a folder, not a log file: adir",)),
+    "report-missing-log": (["report", "x.mcap", "-o", "rep"], 2, ("report: no such log file: x.mcap",)),
     "listen-no-zenoh": (["listen", "--no-zenoh"], 2, ("listen does not take --no-zenoh",)),
     "listen-rate": (["listen", "--rate", "5"], 2, ("listen does not take --rate 5",)),
     "report-rate-before-log": (["report", "--rate", "5", str(LOG)], 2, ("report does not take --rate (see",)),  # 5 was taken as the log
