@@ -444,9 +444,15 @@ def heading_feedback(params_bias: np.record, bias: np.record, predicted_q: tuple
     correction = rotvec_between_body(predicted_q, posterior_q)
     down = rotation_rows(posterior_q)[2]  # world down in the body frame
     about_down = vec3.dot(correction, down)
+    _fed_back(params_bias, bias, (about_down * down[0], about_down * down[1], about_down * down[2]), tau_s)
+
+
+@njit(cache=True, nogil=True, inline="always")  # inlined: three lines, the two feedbacks' shared step
+def _fed_back(params_bias: np.record, bias: np.record, correction: tuple, tau_s: float) -> None:
+    """The bias estimate less a body-frame ``correction`` over ``tau_s`` (integral feedback), each axis clipped."""
     e = bias.estimate_rad_s
     for i in range(3):
-        e[i] = _clipped(e[i] - about_down * down[i] / tau_s, params_bias.max_abs_rad_s)
+        e[i] = _clipped(e[i] - correction[i] / tau_s, params_bias.max_abs_rad_s)
 
 
 @njit(cache=True, nogil=True)
@@ -461,11 +467,8 @@ def integral_feedback(params_bias: np.record, bias: np.record, predicted_q: tupl
     time constant (the covariance scaled, its shape kept), and never raises
     it (a bias learnt at rest is known better than feedback can tell).
     """
-    correction = rotvec_between_body(predicted_q, posterior_q)
     tau = params_bias.time_constant_s
-    e = bias.estimate_rad_s
-    for i in range(3):
-        e[i] = _clipped(e[i] - correction[i] / tau, params_bias.max_abs_rad_s)
+    _fed_back(params_bias, bias, rotvec_between_body(predicted_q, posterior_q), tau)
     decay = min(1.0, dt_s / tau)
     variance = variance_rad2_s2(bias)
     learnt = variance - decay * max(0.0, variance - params_bias.floor_sigma_rad_s * params_bias.floor_sigma_rad_s)
