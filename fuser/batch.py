@@ -38,6 +38,9 @@ SCORE_SINCE_S = 5.0
 """The error against the reference leaves out this much convergence at the start (as ``report`` does)."""
 REJECTION_COUNTERS = ("late", "gated")
 """Loop and model counters whose name holds one of these count a refused sample or measurement."""
+COMPILE_SHOWN_S = 0.05
+"""A replay that compiled the filter for this long (s; one decimal shows it) says so beside its rate, which leaves
+the compiling out (``replay LOG -o OUT``'s line, a batch's notes)."""
 CLUSTER_EXTRA = "pip install 'bingham-fuser[cluster]'"
 DASK_CONNECT_TIMEOUT_S = 10.0
 """How long to try reaching the Dask scheduler before giving up."""
@@ -69,6 +72,8 @@ class LogResult:
     estimates: int = 0
     seconds: float = 0.0
     """The replay's own wall time (reading, fusing, writing), without the scoring."""
+    compile_seconds: float = 0.0
+    """Of ``seconds``, those its worker spent compiling the filter (its first log after installing)."""
     accepted: int = 0
     """Samples the loop buffered for a tick (the others came late)."""
     rejected: int = 0
@@ -87,7 +92,9 @@ class LogResult:
 
     @property
     def samples_per_s(self) -> float:
-        return self.samples / self.seconds if self.seconds > 0 else 0.0
+        """The replay's rate, without the compiling."""
+        fusing = self.seconds - self.compile_seconds
+        return self.samples / fusing if fusing > 0 else 0.0
 
 
 def _one_line(exc: BaseException) -> str:
@@ -128,9 +135,10 @@ def run_task(task: LogTask) -> LogResult:
     counters = summary.counters
     rejected = sum(v for k, v in counters.items() if any(mark in k for mark in REJECTION_COUNTERS))
     warning = None if summary.inputs is None else summary.inputs.warning()
-    return LogResult(task.log, task.output, True, "", summary.samples, summary.estimates, summary.seconds,
-                     counters.get("samples", 0), rejected, error_deg, reference, dict(summary.imported or {}),
-                     warning, summary.inputs.refused if warning is not None else {})  # type: ignore[union-attr]
+    return LogResult(task.log, task.output, True, samples=summary.samples, estimates=summary.estimates, seconds=summary.seconds,
+                     compile_seconds=summary.compile_seconds, accepted=counters.get("samples", 0), rejected=rejected,
+                     error_deg=error_deg, reference=reference, not_imported=dict(summary.imported or {}), input_warning=warning,
+                     input_refused=summary.inputs.refused if warning is not None else {})  # type: ignore[union-attr]
 
 
 def output_paths(logs: Sequence[str | Path], out_dir: str | Path) -> list[Path]:
@@ -319,6 +327,9 @@ def format_summary(results: Iterable[LogResult], wall_s: float | None = None) ->
              for r in results if r.not_imported]
     notes += [f"{r.input_warning} (not used: {_listed(r.input_refused)})"
               for r in results if r.input_warning]
+    compiled = sum(r.compile_seconds for r in results)
+    if compiled >= COMPILE_SHOWN_S:
+        notes.append(f"samples/s leave out the {compiled:.1f} s spent compiling the filter (the first logs after installing)")
     failed = sum(not r.ok for r in results)
     samples = sum(r.samples for r in results)
     total = f"replay: {len(results)} logs, {len(results) - failed} ok, {failed} failed; {samples:,} samples"

@@ -559,10 +559,14 @@ def _warm_up(config: FuserConfig) -> None:
     """Compile (or load) the filter's kernels before a live run (fuser/warmup.py)."""
     from fuser.warmup import warm_up
 
-    def notice() -> None:
-        print("compiling the filter (once after installing, about 30 s; cached for later runs)...", file=sys.stderr, flush=True)
+    log.debug("kernels ready in %.1f s", warm_up(config, _say_compiling))
 
-    log.debug("kernels ready in %.1f s", warm_up(config, notice))
+
+def _say_compiling() -> None:
+    """Tell the user why the command waits (a cold numba cache, :mod:`fuser.compiling`)."""
+    from fuser.compiling import COMPILING
+
+    print(COMPILING, file=sys.stderr, flush=True)
 
 
 def _estimate_sinks(pub: Any, rec: Any) -> list:
@@ -652,7 +656,7 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
         return batch.command(args, config)
     log = args.log[0]
     _check_output(args.output, "--output")
-    summary = replay(log, args.output, config)
+    summary = replay(log, args.output, config, notice=_say_compiling)
     if summary.imported is not None:
         _print_not_imported(log, summary.imported)
     if summary.skipped:
@@ -662,8 +666,9 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     if summary.not_recorded:
         _warn(f"{sum(summary.not_recorded.values())} records could not be stored in {args.output} and were left out "
               f"({', '.join(f'{k}={v}' for k, v in sorted(summary.not_recorded.items()))})")
+    compiled = f"; {summary.compile_seconds:.1f} s of it compiling the filter" if summary.compile_seconds >= batch.COMPILE_SHOWN_S else ""
     print(f"replay: {summary.samples} samples -> {summary.estimates} estimates in {summary.seconds:.2f} s "
-          f"({summary.samples_per_s:,.0f} samples/s); {args.output}")
+          f"({summary.samples_per_s:,.0f} samples/s{compiled}); {args.output}")
     if summary.counters:
         print("counters: " + ", ".join(f"{k}={v}" for k, v in sorted(summary.counters.items())))
     _print_inputs([summary.inputs] if summary.inputs else [])

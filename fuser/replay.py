@@ -31,7 +31,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from dataclasses import replace as with_fields
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator, TextIO
+from typing import TYPE_CHECKING, Callable, Iterator, TextIO
 
 from drivers.samples import Sample
 from fuser.codec import Estimate, decode_sample, loads
@@ -75,9 +75,14 @@ class ReplaySummary:
     it skipped and the samples its decoder refused (:attr:`fuser.importers.ImportSummary.skipped` and ``refused``, as
     ``import`` prints them); None for an MCAP or a .tlog."""
 
+    compile_seconds: float = 0.0
+    """Of ``seconds``, those numba spent compiling the filter (the first run after installing, :mod:`fuser.compiling`)."""
+
     @property
     def samples_per_s(self) -> float:
-        return self.samples / self.seconds if self.seconds > 0 else float("inf")
+        """The replay's rate, without the compiling."""
+        fusing = self.seconds - self.compile_seconds
+        return self.samples / fusing if fusing > 0 else float("inf")
 
 
 class _LogReader:
@@ -225,16 +230,24 @@ def _check_tlog(log: Path) -> None:
         raise NotALogError(f"{log} is not a MAVLink telemetry log ({'it is empty' if not head else 'no MAVLink packet in it'})")
 
 
-def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: TextIO | None = sys.stderr) -> ReplaySummary:
+def replay(log: str | Path, out: str | Path, config: FuserConfig, progress: TextIO | None = sys.stderr,
+           notice: Callable[[], None] | None = None) -> ReplaySummary:
     """Fuse every input of ``log`` (MCAP, .tlog, or a log ``import`` reads) and record the result to ``out``.
 
-    ``progress``: where to draw a progress bar (only if it is a terminal).
+    ``progress``: where to draw a progress bar (only if it is a terminal). ``notice``: called once, from a timer
+    thread, if the filter's kernels have been compiling for :data:`fuser.compiling.NOTICE_AFTER_S` (the first run
+    after installing); the seconds they took are the summary's ``compile_seconds``.
     """
     log, out = Path(log), Path(out)
     check_log_file(log)
-    if is_importable(log):
-        return _replay_imported(log, out, config, progress)
-    return _replay(log, out, config, progress, log.name)
+    from fuser.compiling import compile_watch  # noqa: PLC0415 - numba loads only once the log is known to be there
+
+    with compile_watch(notice) as compiling:
+        if is_importable(log):
+            summary = _replay_imported(log, out, config, progress)
+        else:
+            summary = _replay(log, out, config, progress, log.name)
+    return with_fields(summary, compile_seconds=compiling.seconds)
 
 
 def _import_prefix(log: Path) -> str:

@@ -10,40 +10,34 @@ cache 1.4 deg reporting 4). So the live commands first fuse a few seconds of
 the built-in simulator, GNSS included, through a throwaway loop at full
 speed: every kernel a tick calls is compiled, or loaded from the cache
 (0.3 s), before the first real sample. Nothing of it reaches the outputs;
-the live loop starts from its own initial state. When it takes longer than
-:data:`NOTICE_AFTER_S` (the cache is cold), the user is told why the command
-is waiting.
+the live loop starts from its own initial state. When a compile runs for
+longer than :data:`fuser.compiling.NOTICE_AFTER_S` (the cache is cold), the
+user is told why the command is waiting.
 """
 
 from __future__ import annotations
 
-import threading
 import time
 from typing import Callable
 
 from drivers.sim import SimConfig, simulate
+from fuser.compiling import compile_watch
 from fuser.config import FuserConfig
 from fuser.inputs import SIM_LINK_LATENCY_NS, sim_ticks
 from fuser.loop import FusionLoop
 
-__all__ = ["NOTICE_AFTER_S", "WARM_UP_FLIGHT_S", "warm_up"]
+__all__ = ["WARM_UP_FLIGHT_S", "warm_up"]
 
 WARM_UP_FLIGHT_S = 4.0
 """Seconds of simulated flight: long enough for the tilt to converge and GNSS aiding to start."""
 
-NOTICE_AFTER_S = 2.0
-"""A warm-up still running after this (s) is compiling: ``notice`` is called once (a warm one takes 0.3 s)."""
-
 
 def warm_up(config: FuserConfig, notice: Callable[[], None] | None = None) -> float:
     """Fuse ``WARM_UP_FLIGHT_S`` of the simulator with ``config`` and discard it; returns the wall seconds it took.
-    ``notice`` is called (from a timer thread) if it is still running after :data:`NOTICE_AFTER_S`."""
+    ``notice`` is called (from a timer thread) when a kernel has been compiling for
+    :data:`fuser.compiling.NOTICE_AFTER_S`."""
     start = time.monotonic()
-    timer = threading.Timer(NOTICE_AFTER_S, notice) if notice is not None else None
-    if timer is not None:
-        timer.daemon = True
-        timer.start()
-    try:
+    with compile_watch(notice):
         loop = FusionLoop(config)
         for t_ns, _, samples in sim_ticks(simulate(SimConfig(seed=0, duration_s=WARM_UP_FLIGHT_S, imu_rate_hz=200.0))):
             received = t_ns + SIM_LINK_LATENCY_NS
@@ -51,7 +45,4 @@ def warm_up(config: FuserConfig, notice: Callable[[], None] | None = None) -> fl
             for sample in samples:
                 loop.push(sample, received)
         loop.flush()
-    finally:
-        if timer is not None:
-            timer.cancel()
     return time.monotonic() - start

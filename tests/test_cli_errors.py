@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pytest
 
+from fuser.compiling import COMPILING
 from local_net import free_port
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -131,7 +132,7 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Result]:
 def test_bad_input_is_one_line_and_an_exit_code(name: str, results: dict[str, Result]) -> None:
     case = CASES[name]
     r = results[name]
-    lines = r.stderr.splitlines()
+    lines = [x for x in r.stderr.splitlines() if x != COMPILING]  # a cold numba cache: a replay says it compiles first
     assert len(lines) == 1, r.stderr
     assert "Traceback" not in r.stderr and "internal error" not in r.stderr
     assert lines[0].startswith("bingham-fuser: ")

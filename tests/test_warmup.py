@@ -102,17 +102,3 @@ def test_inlined_helpers_are_not_compiled_on_their_own(compiled):
     assert len(inlined) >= 5, inlined  # the helpers are marked (the check below is not vacuous)
     on_their_own = {name: replays[name] for name in inlined if replays.get(name)}
     assert not on_their_own, on_their_own
-
-
-@pytest.mark.parametrize("notice_after_s, told", [(0.0, True), (600.0, False)])
-def test_a_slow_warm_up_tells_the_user_why_it_waits(monkeypatch, notice_after_s, told):
-    """A warm-up still running after NOTICE_AFTER_S (a cold cache: the kernels compiling) calls its notice once; a
-    quick one (the kernels loaded) does not. Here the kernels are already loaded, so the threshold is moved instead."""
-    from fuser import warmup
-    from fuser.config import FuserConfig
-
-    calls: list[float] = []
-    monkeypatch.setattr(warmup, "NOTICE_AFTER_S", notice_after_s)
-    seconds = warmup.warm_up(FuserConfig(), lambda: calls.append(1.0))
-    assert seconds > 0.0
-    assert len(calls) == (1 if told else 0)
