@@ -15,6 +15,7 @@ w first), ``M`` and ``Z`` (the Bingham posterior), ``uncertainty_deg``,
 import argparse
 import json
 import queue
+import sys
 
 import zenoh
 
@@ -43,13 +44,15 @@ def main() -> None:
         try:
             while not args.count or n < args.count:
                 key, payload = arrived.get()
-                if args.raw:
-                    print(payload.decode(), flush=True)
-                else:
+                try:  # anyone on the network can put on the key: skip what is not an estimate
                     est = json.loads(payload)
-                    roll, pitch, yaw = est["euler_deg"]
-                    print(f"{key}  t={est['t_ns'] / 1e9:.6f} s  roll={roll:.2f}  pitch={pitch:.2f}  yaw={yaw:.2f} deg"
-                          f"  +/-{est['uncertainty_deg']:.2f} deg", flush=True)
+                    roll, pitch, yaw = (float(a) for a in est["euler_deg"])
+                    line = (f"{key}  t={int(est['t_ns']) / 1e9:.6f} s  roll={roll:.2f}  pitch={pitch:.2f}  yaw={yaw:.2f} deg"
+                            f"  +/-{float(est['uncertainty_deg']):.2f} deg")
+                except (ValueError, TypeError, KeyError, RecursionError) as exc:
+                    print(f"skipped a payload on {key} that is not an estimate: {type(exc).__name__}", file=sys.stderr, flush=True)
+                    continue
+                print(payload.decode() if args.raw else line, flush=True)
                 n += 1
         except KeyboardInterrupt:
             pass

@@ -707,11 +707,13 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
 
 
 def _cmd_listen(args: argparse.Namespace, config: FuserConfig) -> int:
-    from fuser.publish import listen, zenoh_config
+    from fuser.publish import key, listen, zenoh_config
 
     _check_listen(args)
     # a listener connects to the fuser's endpoint unless told otherwise
     connect = list(config.zenoh.connect) or list(config.zenoh.listen)
+    print(f"listen: estimates on {key(config.vehicle, 'attitude')} through {', '.join(connect)}; Ctrl-C to stop",
+          file=sys.stderr, flush=True)
     listen(zenoh_config(listen=[], connect=connect), config.vehicle, json_output=args.json, count=args.count)
     return 0
 

@@ -16,6 +16,7 @@ library's (:func:`dumps`).
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from typing import Any
@@ -24,7 +25,7 @@ import orjson
 
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, MagSample, Sample, SourceId
 
-__all__ = ["Estimate", "decode_sample", "dumps", "encode_sample", "loads", "sample_channel", "sample_json"]
+__all__ = ["Estimate", "MalformedPayload", "decode_sample", "dumps", "encode_sample", "loads", "sample_channel", "sample_json"]
 
 
 _ENCODER = json.JSONEncoder(separators=(",", ":"), allow_nan=False)
@@ -209,15 +210,77 @@ class Estimate:
         return dumps({"t_ns": self.t_ns, "updates": list(self.diagnostics)})
 
     @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Estimate:
+    def from_dict(cls, d: Any) -> Estimate:
+        """The estimate a payload's object holds (:meth:`to_dict`'s layout, fuser/IO.md), its numbers as they were
+        (so that :meth:`to_json` gives the same bytes back); :class:`MalformedPayload` naming the first field
+        that is missing or not what the layout says."""
+        if not isinstance(d, dict):
+            raise MalformedPayload("not a JSON object")
+        for name in _REQUIRED:
+            if name not in d:
+                raise MalformedPayload(f"no {name}")
+        counters = d.get("counters", {})
+        if not (isinstance(counters, dict) and all(_is_integer(v) for v in counters.values())):
+            raise MalformedPayload("counters: expected an object of integers")
+        sensor_t_ns = d.get("sensor_t_ns")
+        if not (sensor_t_ns is None or _is_integer(sensor_t_ns)):
+            raise MalformedPayload("sensor_t_ns: expected an integer or null")
+        predicted = d.get("predicted", False)
+        if not isinstance(predicted, bool):
+            raise MalformedPayload("predicted: expected true or false")
+        if not _is_integer(d["t_ns"]):
+            raise MalformedPayload("t_ns: expected an integer")
+        uncertainty = d["uncertainty_deg"]
+        if not (_is_number(uncertainty) and uncertainty >= 0):
+            raise MalformedPayload("uncertainty_deg: expected a finite number >= 0")
+        rows, M = "M: expected 4 rows of 4 finite numbers", d["M"]
+        if not (isinstance(M, list) and len(M) == 4):
+            raise MalformedPayload(rows)
         return cls(
-            int(d["t_ns"]),
-            tuple(d["q_wxyz"]),  # type: ignore[arg-type]
-            tuple(tuple(r) for r in d["M"]),
-            tuple(d["Z"]),  # type: ignore[arg-type]
-            float(d["uncertainty_deg"]),
-            tuple(d["euler_deg"]),  # type: ignore[arg-type]
-            dict(d.get("counters", {})),
-            d.get("sensor_t_ns"),
-            bool(d.get("predicted", False)),
+            d["t_ns"],
+            _numbers(d["q_wxyz"], 4, "q_wxyz: expected 4 finite numbers"),  # type: ignore[arg-type]
+            tuple(_numbers(row, 4, rows) for row in M),
+            _numbers(d["Z"], 4, "Z: expected 4 finite numbers"),  # type: ignore[arg-type]
+            uncertainty,
+            _numbers(d["euler_deg"], 3, "euler_deg: expected 3 finite numbers"),  # type: ignore[arg-type]
+            dict(counters),
+            sensor_t_ns,
+            predicted,
         )
+
+    @classmethod
+    def from_json(cls, payload: bytes) -> Estimate:
+        """The estimate published or recorded as ``payload`` (:meth:`to_json`); :class:`MalformedPayload` if it is
+        not one (not JSON, not UTF-8, or not the layout)."""
+        try:
+            d = loads(payload)
+        except (ValueError, RecursionError):  # JSONDecodeError and UnicodeDecodeError are ValueErrors
+            raise MalformedPayload("not JSON") from None
+        return cls.from_dict(d)
+
+
+class MalformedPayload(ValueError):
+    """A payload that is not what its key or channel carries (an estimate, a status); the message names what is
+    wrong in a few words, from a fixed set (so that a subscriber can count them by it)."""
+
+
+_REQUIRED = ("t_ns", "q_wxyz", "M", "Z", "uncertainty_deg", "euler_deg")
+"""The fields every estimate has (fuser/IO.md); ``counters``, ``sensor_t_ns`` and ``predicted`` may be left out."""
+_INT64 = 1 << 63
+
+
+def _is_integer(value: Any) -> bool:
+    """A JSON integer within int64 (``true`` and ``false`` are not numbers here)."""
+    return isinstance(value, int) and not isinstance(value, bool) and -_INT64 <= value < _INT64
+
+
+def _is_number(value: Any) -> bool:
+    """A finite float or an int64 (``NaN`` and ``Infinity``, which Python's parser takes, are not)."""
+    return (isinstance(value, float) and math.isfinite(value)) or _is_integer(value)
+
+
+def _numbers(value: Any, n: int, wrong: str) -> tuple[Any, ...]:
+    """``value``, a list of ``n`` finite numbers, as a tuple; :class:`MalformedPayload` saying ``wrong`` otherwise."""
+    if not (isinstance(value, list) and len(value) == n and all(_is_number(v) for v in value)):
+        raise MalformedPayload(wrong)
+    return tuple(value)

@@ -17,12 +17,14 @@ import logging
 import queue
 import re
 import sys
+import threading
+from collections import Counter
 from collections.abc import Callable
 from typing import Any, TextIO
 
 import zenoh
 
-from .codec import Estimate, dumps
+from .codec import Estimate, MalformedPayload, dumps
 from .errors import EXIT_USAGE, FuserError
 
 __all__ = [
@@ -190,13 +192,28 @@ class ZenohPublisher:
 
 class Subscription:
     """Callbacks on raw payloads of ``bingham_fuser/<vehicle>/<leaf>``, each called with the publishing vehicle's
-    name (``vehicle`` may be ``*``) and the payload; ``close()`` to stop."""
+    name (``vehicle`` may be ``*``) and the payload; ``close()`` to stop. Anyone on the network can put on those
+    keys: a handler that finds a payload is not what the key carries raises :class:`MalformedPayload`, and the
+    payload is counted in :attr:`ignored` by that reason, never passed on."""
 
     def __init__(self, config: zenoh.Config, vehicle: str, handlers: dict[str, Callable[[str, bytes], None]]) -> None:
+        self.ignored: Counter[str] = Counter()
+        """Payloads the handlers refused, by ``<leaf>: <reason>`` (a fixed set of reasons: bounded)."""
+        self._counting = threading.Lock()
+        """zenoh may call the handlers from more than one thread."""
         self._session = open_session(config)
         self._subscribers = [
-            self._session.declare_subscriber(key(vehicle, leaf), _on_payload(handler)) for leaf, handler in handlers.items()
+            self._session.declare_subscriber(key(vehicle, leaf), self._on_payload(leaf, handler)) for leaf, handler in handlers.items()
         ]
+
+    def _on_payload(self, leaf: str, handler: Callable[[str, bytes], None]) -> Callable[[zenoh.Sample], None]:
+        def on_sample(sample: zenoh.Sample) -> None:
+            try:
+                handler(str(sample.key_expr).split("/")[1], sample.payload.to_bytes())  # bingham_fuser/<vehicle>/<leaf>
+            except MalformedPayload as exc:
+                with self._counting:
+                    self.ignored[f"{leaf}: {exc}"] += 1
+        return on_sample
 
     def close(self) -> None:
         self._session.close()
@@ -208,21 +225,29 @@ class Subscription:
         self.close()
 
 
-def _on_payload(handler: Callable[[str, bytes], None]) -> Callable[[zenoh.Sample], None]:
-    return lambda sample: handler(str(sample.key_expr).split("/")[1], sample.payload.to_bytes())  # bingham_fuser/<vehicle>/<leaf>
-
-
 def subscribe(
     config: zenoh.Config,
     vehicle: str,
     on_estimate: Callable[[Estimate], None],
     on_status: Callable[[dict[str, Any]], None] | None = None,
 ) -> Subscription:
-    """Call ``on_estimate`` (and ``on_status``) from zenoh's thread for each arriving message."""
-    handlers = {"attitude": lambda _, b: on_estimate(Estimate.from_dict(json.loads(b)))}
+    """Call ``on_estimate`` (and ``on_status``) from zenoh's thread for each arriving message; a payload that is not
+    an estimate (or a status that is not a JSON object) is counted in the subscription's ``ignored``."""
+    handlers = {"attitude": lambda _, b: on_estimate(Estimate.from_json(b))}
     if on_status is not None:
-        handlers["status"] = lambda _, b: on_status(json.loads(b))
+        handlers["status"] = lambda _, b: on_status(_status(b))
     return Subscription(config, vehicle, handlers)
+
+
+def _status(payload: bytes) -> dict[str, Any]:
+    """A status payload's object (fuser/IO.md); :class:`MalformedPayload` if it is not a JSON object."""
+    try:
+        status = json.loads(payload)
+    except (ValueError, RecursionError):
+        status = None
+    if not isinstance(status, dict):
+        raise MalformedPayload("not a JSON object")
+    return status
 
 
 def format_estimate(est: Estimate) -> str:
@@ -235,25 +260,61 @@ def format_estimate(est: Estimate) -> str:
     )
 
 
+MAX_WAITING = 10_000
+"""Estimates ``listen`` holds for printing; beyond, new ones are dropped and counted (a terminal slower than a
+fleet's estimates: memory stays bounded)."""
+POLL_S = 0.5
+"""How often ``listen`` looks for ignored payloads to tell of while no estimate arrives (s)."""
+
+
 def listen(
-    config: zenoh.Config, vehicle: str, json_output: bool = False, count: int | None = None, out: TextIO = sys.stdout
+    config: zenoh.Config, vehicle: str, json_output: bool = False, count: int | None = None, out: TextIO = sys.stdout,
+    err: TextIO = sys.stderr,
 ) -> int:
     """Print arriving estimates, one line each (raw JSON with ``json_output``), until ``count`` or Ctrl-C; listening
     to every vehicle (``*``), each human line begins with the vehicle's name.
 
-    Returns how many were printed.
+    A payload that is not an estimate (anyone can put on the key) is not printed: the first one is said on ``err``
+    with its reason, and at the end how many were ignored, by reason, and how many were dropped because printing
+    fell behind. Returns how many were printed.
     """
-    arrived: queue.Queue[tuple[str, bytes]] = queue.Queue()
+    arrived: queue.Queue[tuple[str, Estimate, bytes]] = queue.Queue(MAX_WAITING)
+    dropped: Counter[str] = Counter()
+    dropping = threading.Lock()
+
+    def on_attitude(name: str, payload: bytes) -> None:
+        estimate = Estimate.from_json(payload)  # MalformedPayload: counted by the subscription
+        try:
+            arrived.put_nowait((name, estimate, payload))
+        except queue.Full:
+            with dropping:
+                dropped["estimates"] += 1
+
     printed = 0
-    with Subscription(config, vehicle, {"attitude": lambda name, payload: arrived.put((name, payload))}):
+    with Subscription(config, vehicle, {"attitude": on_attitude}) as subscription:
+        told = False
         try:
             while count is None or printed < count:
-                name, payload = arrived.get()
-                line = payload.decode() if json_output else format_estimate(Estimate.from_dict(json.loads(payload)))
+                if not told and subscription.ignored:
+                    told = True
+                    reason = next(iter(dict(subscription.ignored))).removeprefix("attitude: ")  # a copy: counted meanwhile
+                    print(f"listen: ignored a payload on {key(vehicle, 'attitude')} that is not an estimate ({reason}); "
+                          "further ones are counted", file=err, flush=True)
+                try:
+                    name, estimate, payload = arrived.get(timeout=POLL_S)
+                except queue.Empty:
+                    continue
+                line = payload.decode() if json_output else format_estimate(estimate)
                 if "*" in vehicle and not json_output:
                     line = f"{name}: {line}"
                 print(line, file=out, flush=True)
                 printed += 1
         except KeyboardInterrupt:
             pass
+        ignored = dict(subscription.ignored)
+    if ignored or dropped:
+        what = [f"ignored {sum(ignored.values())} payloads that are not estimates ("
+                + ", ".join(f"{k.removeprefix('attitude: ')}: {v}" for k, v in sorted(ignored.items())) + ")"] if ignored else []
+        what += [f"dropped {dropped['estimates']} estimates while printing fell behind"] if dropped else []
+        print("listen: " + "; ".join(what), file=err, flush=True)
     return printed
