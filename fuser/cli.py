@@ -609,7 +609,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
     if args.record:
         _check_output(args.record, "--record")
     from drivers.sources import DroneCanSource, MavlinkSource
-    from fuser.inputs import source_report
+    from fuser.inputs import silence_hint, source_report
     from fuser.live import LiveRunner
     from fuser.pipeline import Pipeline
     from fuser.record import RecorderProcess
@@ -641,6 +641,9 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
                                                          file=sys.stderr, flush=True))
     print(f"run: {status['estimates']} estimates; loop {status['loop']}; latency {status['latency']}")
     _print_inputs(source_report(name, src) for name, src in sources.items())
+    for name, src in sources.items():
+        if not src.stats.get("accepted"):  # the whole run without a sample from it: say what it did receive
+            _warn(silence_hint(name, src.stats))
     if rec is not None:
         _check_recorder(rec, args.record)
     return 0

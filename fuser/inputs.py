@@ -22,7 +22,7 @@ from drivers.samples import ImuSample, Sample
 from drivers.sim import Flight, dronecan_stream, mavlink_stream
 from drivers.tlog import TlogSource
 
-__all__ = ["InputReport", "TlogInputs", "sim_ticks", "source_report"]
+__all__ = ["InputReport", "TlogInputs", "silence_hint", "sim_ticks", "source_report"]
 
 SIM_LINK_LATENCY_NS = 1_000_000
 """Receive time of a simulated sample: its send time plus this link latency."""
@@ -111,6 +111,20 @@ class TlogInputs:
     @property
     def stats(self) -> Counter[str]:
         return self.source.stats
+
+
+def silence_hint(name: str, stats: Mapping[str, int]) -> str:
+    """For a live source that has delivered no sample: what it did receive, by its decoder's ``stats``, and what to
+    check. Nothing at all is the link (an address nobody sends to); valid messages without data (heartbeats,
+    status) are the vehicle's stream rates, which ArduPilot and PX4 set per link."""
+    if not any(stats.values()):
+        return f"{name}: nothing received; is the vehicle, or a router, sending to this address?"
+    refused = ", ".join(f"{k}={v:,}" for k, v in sorted(stats.items()) if k not in NOT_REFUSALS and v)
+    if stats.get("ignored"):
+        return (f"{name}: {stats['ignored']:,} messages heard, none with IMU, attitude or GNSS data"
+                + (f" (not used: {refused})" if refused else "") + "; does the vehicle stream them on this link? "
+                "(ArduPilot: SRn_RAW_SENS, SRn_EXTRA1, SRn_POSITION; PX4: the MAVLink instance's mode or MAV_n_RATE)")
+    return f"{name}: nothing usable received (not used: {refused})"
 
 
 def source_report(name: str, source: Any) -> InputReport:

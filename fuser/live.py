@@ -27,6 +27,7 @@ from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
 from fuser.model import FusionModel, TickInput
 from fuser.pipeline import STATUS_PERIOD_NS, Pipeline
+from fuser.inputs import silence_hint
 from fuser.wallclock import WallClock
 
 __all__ = ["LiveRunner"]
@@ -41,6 +42,9 @@ SPIN_NS = 300_000
 """The loop blocks for samples until this long before a tick is due, then polls for them until the tick:
 a blocking wait wakes 0.1-0.3 ms late (timer slack, scheduling), polling wakes on time (2% of a core at 100 Hz)."""
 
+
+SILENT_START_NS = 5_000_000_000
+"""A source that has delivered no sample this long after the run started says what it did receive, once."""
 
 MAX_QUEUED_SAMPLES = 20_000
 """Samples waiting between the source threads and the loop (50 s of a 400 Hz IMU): beyond it, a sample is
@@ -62,12 +66,15 @@ class _SourceThread(threading.Thread):
         self.queue_full = 0
         self.last_sample_ns: int | None = None
         self._stalled = False
+        self._silent_since_ns: int | None = None
+        """When the run started, until the source has delivered or its silence has been told."""
 
     def health(self, now_ns: int) -> dict:
         silent = None if self.last_sample_ns is None else round((now_ns - self.last_sample_ns) / 1e9, 3)
         return {"poll_errors": self.errors, "stalls": self.stalls, "queue_full": self.queue_full, "silent_s": silent}
 
     def run(self) -> None:
+        self._silent_since_ns = self.clock.now_ns()
         while not self.stop.is_set():
             try:
                 samples = self.source.poll(0.05)
@@ -79,7 +86,10 @@ class _SourceThread(threading.Thread):
                 continue
             now = self.clock.now_ns()
             if samples:
-                self.last_sample_ns, self._stalled = now, False
+                self.last_sample_ns, self._stalled, self._silent_since_ns = now, False, None
+            elif self._silent_since_ns is not None and now - self._silent_since_ns > SILENT_START_NS:
+                self._silent_since_ns = None
+                log.warning("no sample in %.0f s: %s", SILENT_START_NS / 1e9, silence_hint(self.label, self.source.stats))
             elif not self._stalled and self.last_sample_ns is not None and now - self.last_sample_ns > STALL_NS:
                 self._stalled = True
                 self.stalls += 1
