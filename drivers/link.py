@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import importlib.util
 import ipaddress
+import math
 import os
 import re
 from dataclasses import dataclass, fields
@@ -36,6 +37,8 @@ from .base import SourceError
 __all__ = ["LinkSettings", "SIGNING_KEY_BYTES", "check_connection"]
 
 SIGNING_KEY_BYTES = 32
+MAX_REQUEST_RATE_HZ = 1000.0
+"""The fastest rate ``request_rate_hz`` may ask for (an IMU's; a MAVLink message interval is in whole microseconds)."""
 """Length of a MAVLink 2 secret key (the SETUP_SIGNING message's ``secret_key``)."""
 _DIALECT_NAME = re.compile(r"[A-Za-z0-9_]+")
 _CONTROL = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
@@ -102,6 +105,9 @@ class LinkSettings:
     Set: unsigned and wrongly signed frames are refused."""
     dialect: str = "ardupilotmega"
     """pymavlink dialect of the link (``ardupilotmega`` is a superset of ``common``)."""
+    request_rate_hz: float | None = None
+    """Ask the vehicle to stream the messages the fuser reads at this rate (Hz), as a ground station does
+    (:mod:`drivers.stream_request`; live links only). Unset: only listen, never write to the vehicle's link."""
 
     def __post_init__(self) -> None:
         _check_id("system", self.system)
@@ -112,6 +118,9 @@ class LinkSettings:
             object.__setattr__(self, "signing_key_file", os.fspath(self.signing_key_file))
         if self.signing_key_file is not None and (not isinstance(self.signing_key_file, str) or not self.signing_key_file):
             raise ValueError(f"link.signing_key_file: a file name (or unset), got {self.signing_key_file!r}")
+        rate = self.request_rate_hz
+        if rate is not None and not (type(rate) in (int, float) and math.isfinite(rate) and 0 < rate <= MAX_REQUEST_RATE_HZ):
+            raise ValueError(f"link.request_rate_hz: a number of Hz in (0, {MAX_REQUEST_RATE_HZ:g}] (or unset), got {rate!r}")
         if not isinstance(self.dialect, str) or not _DIALECT_NAME.fullmatch(self.dialect) or (
             importlib.util.find_spec(f"pymavlink.dialects.v20.{self.dialect}") is None
         ):

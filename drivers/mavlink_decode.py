@@ -118,6 +118,8 @@ class MavlinkDecoder(Decoder):
         """System id data is taken from (None: any, or not chosen yet)."""
         self.component = self.link.component
         """Component id data is taken from (None: any, or not chosen yet)."""
+        self.autopilot: int | None = None
+        """MAV_AUTOPILOT of the vehicle's last HEARTBEAT (None before one, or with every sender used)."""
         self._awaiting_autopilot = self.link.system is None and self.link.lock_first_autopilot
         self._heartbeat = mod.MAVLink_heartbeat_message
         self._not_a_vehicle = frozenset(getattr(mod, f"MAV_TYPE_{name}") for name in NOT_A_VEHICLE if hasattr(mod, f"MAV_TYPE_{name}"))
@@ -193,6 +195,8 @@ class MavlinkDecoder(Decoder):
                 else:
                     self._sequence(sender, header.seq)
                 if handler is None:
+                    if kind is self._heartbeat and self.system is not None and msg.autopilot != self._invalid_autopilot:
+                        self.autopilot = msg.autopilot
                     stats["ignored"] += 1
                     continue
                 sample = handler(msg)

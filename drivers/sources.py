@@ -19,6 +19,7 @@ from .dronecan_decode import DroneCanDecoder
 from .link import LinkSettings
 from .mavlink_decode import MavlinkDecoder
 from .samples import Sample
+from .stream_request import StreamRequester
 
 # mavutil picks MAVLink 1 for what a connection writes unless this is set before its first use.
 os.environ.setdefault("MAVLINK20", "1")
@@ -85,9 +86,12 @@ class MavlinkSource(SampleSource):
     """
 
     def __init__(self, connection_string: str, link: LinkSettings | None = None, baud: int = 57600, **connection_options: Any) -> None:
-        self.decoder = MavlinkDecoder(LinkSettings() if link is None else link)
+        link = LinkSettings() if link is None else link
+        self.decoder = MavlinkDecoder(link)
         self.stats = self.decoder.stats
         self.connection = open_mavlink(connection_string, baud, **connection_options)
+        self.requester = None if link.request_rate_hz is None else StreamRequester(link.request_rate_hz, link, self.connection.write)
+        """Asks the vehicle for its messages (``link.request_rate_hz``, :mod:`drivers.stream_request`); None: listen only."""
 
     def poll(self, timeout: float) -> list[Sample]:
         """Samples read within ``timeout`` s: returns as soon as some have arrived, or after MAX_POLL_BYTES."""
@@ -111,7 +115,19 @@ class MavlinkSource(SampleSource):
             if remaining <= 0 or not self.connection.select(remaining):
                 break
             woken = True
+        if self.requester is not None:
+            self._request()
         return samples
+
+    def _request(self) -> None:
+        """Send the stream requests when due; a write that fails is counted (``request_failed``), the link read on."""
+        try:
+            asked = self.requester.poll(time.monotonic_ns(), self.decoder)  # type: ignore[union-attr]
+        except OSError:
+            self.stats["request_failed"] += 1
+            return
+        if asked:
+            self.stats["stream_requests"] += asked
 
     def close(self) -> None:
         self.connection.close()

@@ -227,6 +227,9 @@ def _add_run(sub: Any) -> None:
     g.add_argument("--baud", type=int, metavar="BAUD", help=f"serial baud rate of the serial --mavlink connections (default: {DEFAULT_BAUD})")
     g.add_argument("--can", action="append", default=[], type=_can_bus, metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
     g.add_argument("--bitrate", type=int, help=f"CAN bitrate for interfaces that set one, e.g. slcan (default: {DEFAULT_BITRATE})")
+    g.add_argument("--request-rate", type=float, dest="request_rate_hz", metavar="HZ",
+                   help="ask each MAVLink vehicle to stream its IMU and attitude at HZ (GNSS at most 10 Hz), as a ground "
+                        "station does, repeated until they come (default: only listen; drivers/stream_request.py)")
     p.add_argument("--attitude-sigma", type=float, dest="attitude_sigma_deg", metavar="DEG", help="also fuse the autopilot's attitude with this noise")
     p.add_argument("--duration", type=_seconds, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs and estimates (in a separate process)")
@@ -416,7 +419,7 @@ def _config(args: argparse.Namespace) -> FuserConfig:
         overrides["attitude.sigma_deg"] = args.attitude_sigma_deg
     if getattr(args, "no_attitude", False):
         overrides["attitude.mode"] = "off"
-    for name in ("system", "component", "signing_key_file", "dialect"):
+    for name in ("system", "component", "signing_key_file", "dialect", "request_rate_hz"):
         overrides[f"link.{name}"] = getattr(args, name, None)
     if getattr(args, "any_sender", False):
         overrides["link.lock_first_autopilot"] = False

@@ -28,10 +28,12 @@ SIM_LINK_LATENCY_NS = 1_000_000
 """Receive time of a simulated sample: its send time plus this link latency."""
 USED_WARNING_FRACTION = 0.9
 """Below this fraction of the decodable IMU messages reaching the loop, the report warns."""
-NOT_REFUSALS = ("accepted", "ignored", "not_dronecan_message", "reboot", "clock_jump", "record_clock_step", "lost")
+NOT_REFUSALS = ("accepted", "ignored", "not_dronecan_message", "reboot", "clock_jump", "record_clock_step", "lost",
+                "stream_requests", "request_failed")
 """Counts in a decoder's (and a .tlog reader's) ``stats`` that are not refusals (drivers/README.md, "Counted but not
 refusals"): what was used, valid messages and frames the drivers do not use (heartbeats, a bus's service traffic),
-events confirmed in a sender's clock or a log's, and the frames missing in MAVLink's sequence numbers."""
+events confirmed in a sender's clock or a log's, the frames missing in MAVLink's sequence numbers, and the stream
+requests sent to the vehicle (``link.request_rate_hz``) and those that could not be written."""
 
 
 @dataclass(frozen=True)
