@@ -118,7 +118,8 @@ class TlogInputs:
 def silence_hint(name: str, stats: Mapping[str, int]) -> str:
     """For a live source that has delivered no sample: what it did receive, by its decoder's ``stats``, and what to
     check. Nothing at all is the link (an address nobody sends to); valid messages without data (heartbeats,
-    status) are the vehicle's stream rates, which ArduPilot and PX4 set per link."""
+    status) are the vehicle's stream rates, which ArduPilot and PX4 set per link; bytes that are no frame at all,
+    on a serial port, are most often a wrong baud rate."""
     if not any(stats.values()):
         return f"{name}: nothing received; is the vehicle, or a router, sending to this address?"
     refused = ", ".join(f"{k}={v:,}" for k, v in sorted(stats.items()) if k not in NOT_REFUSALS and v)
@@ -126,7 +127,8 @@ def silence_hint(name: str, stats: Mapping[str, int]) -> str:
         return (f"{name}: {stats['ignored']:,} messages heard, none with IMU, attitude or GNSS data"
                 + (f" (not used: {refused})" if refused else "") + "; does the vehicle stream them on this link? "
                 "(ArduPilot: SRn_RAW_SENS, SRn_EXTRA1, SRn_POSITION; PX4: the MAVLink instance's mode or MAV_n_RATE)")
-    return f"{name}: nothing usable received (not used: {refused})"
+    garbled = " (bytes that are not MAVLink frames: on a serial link, check --baud)" if stats.get("garbage") else ""
+    return f"{name}: nothing usable received (not used: {refused}){garbled}"
 
 
 def source_report(name: str, source: Any) -> InputReport:

@@ -27,8 +27,11 @@ def test_the_hint_says_what_was_received_and_what_to_check() -> None:
         "can:virtual:0: 40 messages heard, none with IMU, attitude or GNSS data (not used: bad_toggle=2); does the "
         "vehicle stream them on this link? (ArduPilot: SRn_RAW_SENS, SRn_EXTRA1, SRn_POSITION; PX4: the MAVLink "
         "instance's mode or MAV_n_RATE)")
-    assert silence_hint("mavlink:/dev/ttyUSB0", {"bad_crc": 900, "garbage": 12_000}) == \
-        "mavlink:/dev/ttyUSB0: nothing usable received (not used: bad_crc=900, garbage=12,000)"
+    assert silence_hint("mavlink:/dev/ttyUSB0", {"bad_crc": 900, "garbage": 12_000}) == (
+        "mavlink:/dev/ttyUSB0: nothing usable received (not used: bad_crc=900, garbage=12,000) (bytes that are not "
+        "MAVLink frames: on a serial link, check --baud)")
+    assert silence_hint("mavlink:udpin:0.0.0.0:14550", {"bad_signature": 30}) == \
+        "mavlink:udpin:0.0.0.0:14550: nothing usable received (not used: bad_signature=30)"
 
 
 def _heartbeats(port: int, stop: threading.Event) -> None:
