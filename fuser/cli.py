@@ -355,6 +355,8 @@ def _check_run(args: argparse.Namespace) -> None:
         raise UsageError("run: give at least one --mavlink CONN or --can IFACE:CHANNEL")
     if args.baud is not None and not any(map(_is_serial, args.mavlink)):
         _warn(f"--baud {args.baud} is ignored: it applies to serial --mavlink connections, and none is given")
+    if args.request_rate_hz is not None and not args.mavlink:
+        _warn(f"--request-rate {args.request_rate_hz:g} is ignored: it asks MAVLink vehicles, and no --mavlink is given")
     if args.bitrate is not None and all(spec.partition(":")[0] in CAN_WITHOUT_BITRATE for spec in args.can):
         _warn(f"--bitrate {args.bitrate} is ignored: {', '.join(CAN_WITHOUT_BITRATE)} buses take none")
 

@@ -312,6 +312,7 @@ def test_an_import_start_is_a_finite_number_of_seconds_from_zero(value: str, cap
     (["sim", "--scenario", "hover", "--duration", "30"], "--scenario hover is a flight of fixed length: it overrides --duration 30"),
     (["run", "--mavlink", "udpin:0.0.0.0:14550", "--baud", "115200"], "--baud 115200 is ignored"),
     (["run", "--can", "virtual:x", "--bitrate", "500000"], "--bitrate 500000 is ignored"),
+    (["run", "--can", "virtual:x", "--request-rate", "50"], "--request-rate 50 is ignored: it asks MAVLink vehicles"),
     (["listen", "--zenoh-connect", "tcp/127.0.0.1:7447", "--zenoh-listen", "tcp/127.0.0.1:7448"], "--zenoh-connect overrides --zenoh-listen"),
 ])
 def test_an_option_overridden_by_another_is_warned_about(argv: list[str], warning: str, capsys: pytest.CaptureFixture) -> None:
