@@ -37,9 +37,9 @@ from .base import SourceError
 __all__ = ["LinkSettings", "SIGNING_KEY_BYTES", "check_connection"]
 
 SIGNING_KEY_BYTES = 32
+"""Length of a MAVLink 2 secret key (the SETUP_SIGNING message's ``secret_key``)."""
 MAX_REQUEST_RATE_HZ = 1000.0
 """The fastest rate ``request_rate_hz`` may ask for (an IMU's; a MAVLink message interval is in whole microseconds)."""
-"""Length of a MAVLink 2 secret key (the SETUP_SIGNING message's ``secret_key``)."""
 _DIALECT_NAME = re.compile(r"[A-Za-z0-9_]+")
 _CONTROL = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 """Control characters other than a tab, a newline and a carriage return: not in a line of text."""

@@ -90,7 +90,7 @@ class MavlinkSource(SampleSource):
         self.decoder = MavlinkDecoder(link)
         self.stats = self.decoder.stats
         self.connection = open_mavlink(connection_string, baud, **connection_options)
-        self.requester = None if link.request_rate_hz is None else StreamRequester(link.request_rate_hz, link, self.connection.write)
+        self.requester = None if link.request_rate_hz is None else StreamRequester(link, self.connection.write)
         """Asks the vehicle for its messages (``link.request_rate_hz``, :mod:`drivers.stream_request`); None: listen only."""
 
     def poll(self, timeout: float) -> list[Sample]:

@@ -18,7 +18,6 @@ from system ``GCS_SYSTEM_ID``, component ``MAV_COMP_ID_ONBOARD_COMPUTER``.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any, Callable
 
@@ -49,13 +48,13 @@ def requested_messages(autopilot: int | None, mod: Any) -> tuple[str, ...]:
 
 
 class StreamRequester:
-    """Asks the vehicle a :class:`~drivers.mavlink_decode.MavlinkDecoder` reads for its messages at ``rate_hz``,
-    through ``write`` (the link's), whenever :meth:`poll` finds it due (module docstring)."""
+    """Asks the vehicle a :class:`~drivers.mavlink_decode.MavlinkDecoder` reads for its messages at
+    ``link.request_rate_hz``, through ``write`` (the link's), whenever :meth:`poll` finds it due (module docstring)."""
 
-    def __init__(self, rate_hz: float, link: LinkSettings, write: Callable[[bytes], Any]) -> None:
-        if not (isinstance(rate_hz, (int, float)) and math.isfinite(rate_hz) and rate_hz > 0):
-            raise ValueError(f"request rate: a number of Hz > 0, got {rate_hz!r}")
-        self.rate_hz = float(rate_hz)
+    def __init__(self, link: LinkSettings, write: Callable[[bytes], Any]) -> None:
+        if link.request_rate_hz is None:
+            raise ValueError("link.request_rate_hz is not set: nothing to ask for")
+        self.rate_hz = float(link.request_rate_hz)
         self._mod = dialect_module(link.dialect)
         self._mav = self._mod.MAVLink(None, srcSystem=GCS_SYSTEM_ID, srcComponent=self._mod.MAV_COMP_ID_ONBOARD_COMPUTER)
         key = link.signing_key()

@@ -25,9 +25,9 @@ import numpy as np
 from drivers.base import SampleSource
 from drivers.samples import AttitudeSample, ImuSample, Sample, SourceId
 from fuser.codec import Estimate
+from fuser.inputs import silence_hint
 from fuser.model import FusionModel, TickInput
 from fuser.pipeline import STATUS_PERIOD_NS, Pipeline
-from fuser.inputs import silence_hint
 from fuser.wallclock import WallClock
 
 __all__ = ["LiveRunner"]

@@ -72,7 +72,7 @@ def _heard(autopilot: int, link: LinkSettings | None = None) -> MavlinkDecoder:
 @pytest.mark.parametrize("autopilot, asked", [(3, ARDUPILOT), (12, PX4), (0, {"HIGHRES_IMU": 105, "ATTITUDE": 30, "GPS_RAW_INT": 24})])
 def test_the_request_names_what_the_fuser_reads_at_the_rate(autopilot: int, asked: dict[str, int]) -> None:
     written = Written()
-    requester = StreamRequester(50.0, LinkSettings(), written)
+    requester = StreamRequester(LinkSettings(request_rate_hz=50.0), written)
     assert requester.poll(0, MavlinkDecoder(LinkSettings())) == 0 and written.data == b""  # no vehicle heard: nobody to ask
     assert requester.poll(1, _heard(autopilot)) == len(asked)
     intervals = {ARDUPILOT.get(n, PX4.get(n)): (1e6 / 10 if n == "GPS_RAW_INT" else 1e6 / 50) for n in asked}
@@ -82,7 +82,7 @@ def test_the_request_names_what_the_fuser_reads_at_the_rate(autopilot: int, aske
 
 def test_asked_again_until_the_imu_comes_and_again_when_it_stops() -> None:
     written = Written()
-    requester = StreamRequester(100.0, LinkSettings(), written)
+    requester = StreamRequester(LinkSettings(request_rate_hz=100.0), written)
     decoder = _heard(3)
     asked = [t for t in range(0, 30 * SECOND, SECOND // 10) if requester.poll(t, decoder)]
     assert asked == [0, 5 * SECOND, 10 * SECOND, 15 * SECOND, 20 * SECOND, 25 * SECOND]  # lost, or not honoured: every 5 s
@@ -101,13 +101,13 @@ def test_asked_again_until_the_imu_comes_and_again_when_it_stops() -> None:
 def test_with_a_signing_key_the_requests_are_signed_with_it(tmp_path: Path) -> None:
     key = bytes(range(32))
     (tmp_path / "key").write_bytes(key)
-    link = LinkSettings(signing_key_file=str(tmp_path / "key"))
+    link = LinkSettings(signing_key_file=str(tmp_path / "key"), request_rate_hz=20.0)
     written = Written()
-    StreamRequester(20.0, link, written).poll(0, _heard(3))  # the heartbeat unsigned: the decoder here has no key
+    StreamRequester(link, written).poll(0, _heard(3))  # the heartbeat unsigned: the decoder here has no key
     assert len(_commands(written.data, key)) == 5  # every frame verifies with the key
     assert _commands(written.data, bytes(32)) == []  # and none with another
     written_plain = Written()
-    StreamRequester(20.0, LinkSettings(), written_plain).poll(0, _heard(3))
+    StreamRequester(LinkSettings(request_rate_hz=20.0), written_plain).poll(0, _heard(3))
     assert _commands(written_plain.data, key) == []  # unsigned ones are refused by a vehicle that requires signing
 
 
