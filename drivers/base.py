@@ -60,6 +60,8 @@ class SampleSource(ABC):
     """
 
     stats: Counter[str]
+    transport: str = ""
+    """What the source speaks (``"mavlink"``, ``"dronecan"``): what to check when it delivers nothing differs."""
 
     @abstractmethod
     def poll(self, timeout: float) -> list[Sample]:

@@ -85,6 +85,8 @@ class MavlinkSource(SampleSource):
     pymavlink reads it, so a bridge that splits frames across datagrams loses nothing.
     """
 
+    transport = "mavlink"
+
     def __init__(self, connection_string: str, link: LinkSettings | None = None, baud: int = 57600, **connection_options: Any) -> None:
         link = LinkSettings() if link is None else link
         self.decoder = MavlinkDecoder(link)
@@ -141,6 +143,8 @@ class DroneCanSource(SampleSource):
     A bus this source opened is shut down by ``close``; a bus passed in is left open.
     An interface or channel python-can cannot open raises ``SourceError``.
     """
+
+    transport = "dronecan"
 
     def __init__(self, bus: can.BusABC | None = None, **bus_options: Any) -> None:
         self._owns_bus = bus is None

@@ -648,7 +648,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
     _print_inputs(source_report(name, src) for name, src in sources.items())
     for name, src in sources.items():
         if not src.stats.get("accepted"):  # the whole run without a sample from it: say what it did receive
-            _warn(silence_hint(name, src.stats))
+            _warn(silence_hint(name, src.stats, src.transport))
     if rec is not None:
         _check_recorder(rec, args.record)
     return 0

@@ -115,18 +115,25 @@ class TlogInputs:
         return self.source.stats
 
 
-def silence_hint(name: str, stats: Mapping[str, int]) -> str:
+STREAMING = {
+    "mavlink": "does the vehicle stream them on this link? (ArduPilot: SRn_RAW_SENS, SRn_EXTRA1, SRn_POSITION; PX4: the "
+               "MAVLink instance's mode or MAV_n_RATE; or run --request-rate HZ)",
+    "dronecan": "does a node on the bus publish uavcan.equipment.ahrs.RawIMU, ahrs.Solution or gnss.Fix2?",
+}
+"""What to check when a source hears valid traffic without data, by transport."""
+
+
+def silence_hint(name: str, stats: Mapping[str, int], transport: str = "") -> str:
     """For a live source that has delivered no sample: what it did receive, by its decoder's ``stats``, and what to
     check. Nothing at all is the link (an address nobody sends to); valid messages without data (heartbeats,
-    status) are the vehicle's stream rates, which ArduPilot and PX4 set per link; bytes that are no frame at all,
-    on a serial port, are most often a wrong baud rate."""
+    status; a bus's node status) are what the vehicle streams (:data:`STREAMING`, by ``transport``); bytes that
+    are no frame at all, on a serial port, are most often a wrong baud rate."""
     if not any(stats.values()):
         return f"{name}: nothing received; is the vehicle, or a router, sending to this address?"
     refused = ", ".join(f"{k}={v:,}" for k, v in sorted(stats.items()) if k not in NOT_REFUSALS and v)
     if stats.get("ignored"):
         return (f"{name}: {stats['ignored']:,} messages heard, none with IMU, attitude or GNSS data"
-                + (f" (not used: {refused})" if refused else "") + "; does the vehicle stream them on this link? "
-                "(ArduPilot: SRn_RAW_SENS, SRn_EXTRA1, SRn_POSITION; PX4: the MAVLink instance's mode or MAV_n_RATE)")
+                + (f" (not used: {refused})" if refused else "") + f"; {STREAMING.get(transport, 'does the vehicle send them?')}")
     garbled = " (bytes that are not MAVLink frames: on a serial link, check --baud)" if stats.get("garbage") else ""
     return f"{name}: nothing usable received (not used: {refused}){garbled}"
 

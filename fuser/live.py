@@ -89,7 +89,7 @@ class _SourceThread(threading.Thread):
                 self.last_sample_ns, self._stalled, self._silent_since_ns = now, False, None
             elif self._silent_since_ns is not None and now - self._silent_since_ns > SILENT_START_NS:
                 self._silent_since_ns = None
-                log.warning("no sample in %.0f s: %s", SILENT_START_NS / 1e9, silence_hint(self.label, self.source.stats))
+                log.warning("no sample in %.0f s: %s", SILENT_START_NS / 1e9, silence_hint(self.label, self.source.stats, self.source.transport))
             elif not self._stalled and self.last_sample_ns is not None and now - self.last_sample_ns > STALL_NS:
                 self._stalled = True
                 self.stalls += 1

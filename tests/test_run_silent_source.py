@@ -23,10 +23,13 @@ from local_net import free_port
 def test_the_hint_says_what_was_received_and_what_to_check() -> None:
     assert silence_hint("mavlink:udpin:0.0.0.0:14550", {}) == \
         "mavlink:udpin:0.0.0.0:14550: nothing received; is the vehicle, or a router, sending to this address?"
-    assert silence_hint("can:virtual:0", {"ignored": 40, "bad_toggle": 2}) == (
-        "can:virtual:0: 40 messages heard, none with IMU, attitude or GNSS data (not used: bad_toggle=2); does the "
+    assert silence_hint("mavlink:/dev/ttyACM0", {"ignored": 40, "bad_crc": 2}, "mavlink") == (
+        "mavlink:/dev/ttyACM0: 40 messages heard, none with IMU, attitude or GNSS data (not used: bad_crc=2); does the "
         "vehicle stream them on this link? (ArduPilot: SRn_RAW_SENS, SRn_EXTRA1, SRn_POSITION; PX4: the MAVLink "
-        "instance's mode or MAV_n_RATE)")
+        "instance's mode or MAV_n_RATE; or run --request-rate HZ)")
+    assert silence_hint("can:virtual:0", {"ignored": 40, "bad_toggle": 2}, "dronecan") == (
+        "can:virtual:0: 40 messages heard, none with IMU, attitude or GNSS data (not used: bad_toggle=2); does a node "
+        "on the bus publish uavcan.equipment.ahrs.RawIMU, ahrs.Solution or gnss.Fix2?")
     assert silence_hint("mavlink:/dev/ttyUSB0", {"bad_crc": 900, "garbage": 12_000}) == (
         "mavlink:/dev/ttyUSB0: nothing usable received (not used: bad_crc=900, garbage=12,000) (bytes that are not "
         "MAVLink frames: on a serial link, check --baud)")
@@ -69,4 +72,37 @@ def test_a_run_without_samples_says_why(vehicle: str, monkeypatch: pytest.Monkey
     assert len(ended) == 1 and said in ended[0], err
     if vehicle != "none":
         assert "messages heard, none with IMU, attitude or GNSS data; does the vehicle stream them on this link?" in ended[0]
+    assert code == 0
+
+
+def test_a_can_bus_with_only_node_status_says_what_to_check(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture) -> None:
+    """A DroneCAN node alive on the bus (NodeStatus at 2 Hz) that publishes no IMU, attitude or GNSS data."""
+    import can
+
+    from dronecan_bus import frames, node_status
+
+    monkeypatch.setattr(live, "SILENT_START_NS", 1_000_000_000)
+    channel = f"silent-{free_port()}"
+    stop = threading.Event()
+
+    def node() -> None:
+        with can.Bus(interface="virtual", channel=channel) as bus:
+            k = 0
+            while not stop.is_set():
+                for frame in frames(node_status(1.0 + k), 10, k % 32, 1.0 + k):
+                    bus.send(frame)
+                k += 1
+                time.sleep(0.5)
+
+    sender = threading.Thread(target=node, daemon=True)
+    sender.start()
+    try:
+        code = cli.main(["run", "--can", f"virtual:{channel}", "--no-zenoh", "--duration", "2.5"])
+    finally:
+        stop.set()
+        sender.join(5)
+    err = capsys.readouterr().err
+    ended = [line for line in err.splitlines() if line.startswith(f"bingham-fuser: warning: can:virtual:{channel}: ")]
+    assert len(ended) == 1, err
+    assert "messages heard, none with IMU, attitude or GNSS data; does a node on the bus publish uavcan.equipment.ahrs.RawIMU" in ended[0]
     assert code == 0
