@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from itertools import chain
 from typing import Callable, Sequence
 
 from drivers.sim import Flight
@@ -58,13 +59,15 @@ def run_sim(
     """
     clock = (clock or WallClock.start(speed)) if speed > 0 else None
     start_mono = time.monotonic_ns()
+    ticks = sim_ticks(flight, transport)
+    first = next(ticks, None)  # the simulator lays out the whole flight's samples here (50-150 ms): not flight time
     start_wall = clock.now_ns() if clock is not None else 0
     t0 = int(flight.t_ns[0])
     truth_period = round(1e9 / truth_rate_hz)
     next_truth = t0
     next_status = t0 + STATUS_PERIOD_NS
     samples = 0
-    for t_ns, q_true, tick in sim_ticks(flight, transport):
+    for t_ns, q_true, tick in chain([] if first is None else [first], ticks):
         if should_stop():
             break
         if clock is not None:
