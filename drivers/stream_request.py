@@ -9,8 +9,9 @@ writes to a vehicle link: asking changes what the vehicle sends on that link, fo
 Which messages, by the autopilot of the vehicle's HEARTBEAT, one IMU message type each so that no IMU is read twice:
 ArduPilot ``RAW_IMU``, ``SCALED_IMU2``, ``SCALED_IMU3`` (its three IMU instances) and ``ATTITUDE``; PX4
 ``HIGHRES_IMU`` and ``ATTITUDE_QUATERNION``; any other autopilot ``HIGHRES_IMU`` and ``ATTITUDE``; all
-``GPS_RAW_INT`` at most at ``GNSS_MAX_HZ``. The request goes out once the vehicle is known (its HEARTBEAT, or
-``link.system``), and again every ``REPEAT_NS`` for as long as no IMU sample has arrived in ``DATA_TIMEOUT_NS``:
+``GPS_RAW_INT`` at most at ``GNSS_MAX_HZ``. The request goes out once the vehicle's HEARTBEAT has been heard
+(with ``link.system`` set too: asking for HIGHRES_IMU before knowing an ArduPilot would later add RAW_IMU beside
+it), and again every ``REPEAT_NS`` for as long as no IMU sample has arrived in ``DATA_TIMEOUT_NS``:
 a command on a radio can be lost, and a rebooted autopilot starts again from its parameters. Signed with the
 link's key when it has one (MAVLink 2 signing, the timestamp from the clock as ``mavutil.setup_signing`` sets it),
 from system ``GCS_SYSTEM_ID``, component ``MAV_COMP_ID_ONBOARD_COMPUTER``.
@@ -75,8 +76,8 @@ class StreamRequester:
         imu = sum(decoder.used[m] for m in decoder.imu_types)
         if imu != self._imu_seen:
             self._imu_seen, self._imu_ns = imu, now_ns
-        if decoder.system is None or (decoder.autopilot is None and decoder.link.system is None):
-            return 0  # no vehicle yet: nobody to ask
+        if decoder.system is None or decoder.autopilot is None:
+            return 0  # no vehicle's HEARTBEAT yet: nobody to ask, or not which messages (a guess could double an IMU)
         if self._imu_ns is not None and now_ns - self._imu_ns < DATA_TIMEOUT_NS:
             return 0  # the data comes
         if self._asked_ns is not None and now_ns - self._asked_ns < REPEAT_NS:

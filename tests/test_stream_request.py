@@ -62,10 +62,16 @@ class Written:
         self.data += data
 
 
-def _heard(autopilot: int, link: LinkSettings | None = None) -> MavlinkDecoder:
-    decoder = MavlinkDecoder(link or LinkSettings())
-    heartbeat_only = MavlinkEncoder(1, 1, "ardupilotmega", autopilot=autopilot)
-    decoder.feed(heartbeat_only._pack(heartbeat_only._heartbeat))
+def _heartbeat(autopilot: int) -> bytes:
+    """A HEARTBEAT of system 1, component 1: a quadrotor of ``autopilot``, in standby (pymavlink's encoder)."""
+    mav = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)
+    return bytes(mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, autopilot, 0, 0, mavlink.MAV_STATE_STANDBY).pack(mav))
+
+
+def _heard(autopilot: int) -> MavlinkDecoder:
+    """A decoder (the first autopilot's data) that has heard the vehicle's HEARTBEAT."""
+    decoder = MavlinkDecoder(LinkSettings())
+    decoder.feed(_heartbeat(autopilot))
     return decoder
 
 
@@ -167,3 +173,16 @@ def test_run_asks_the_vehicle_and_fuses_what_comes(rate: float | None, ignore: i
     accepted = int(out.split(" samples accepted")[0].rsplit(" ", 1)[1].replace(",", ""))
     assert estimates > 100 and accepted > 50, out
     assert f"stream_requests={5 * (1 + ignore)}" in out, out
+
+
+def test_nothing_is_asked_before_the_vehicle_says_which_autopilot_it_is() -> None:
+    """With ``--system`` the vehicle is known before its HEARTBEAT; the messages are not: a guess (HIGHRES_IMU) sent to
+    an ArduPilot, then RAW_IMU once its HEARTBEAT names it, would stream its IMU twice."""
+    written = Written()
+    link = LinkSettings(system=1, request_rate_hz=50.0)
+    decoder = MavlinkDecoder(link)
+    requester = StreamRequester(link, written)
+    assert [requester.poll(t * SECOND, decoder) for t in range(10)] == [0] * 10 and written.data == b""
+    decoder.feed(_heartbeat(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA))
+    assert requester.poll(10 * SECOND, decoder) == 5
+    assert [c[3] for c in _commands(written.data)] == list(ARDUPILOT.values())
