@@ -147,6 +147,11 @@ class DroneCanDecoder(Decoder):
         self.used: Counter[str] = Counter()
         """Transfers that became samples, by data type name."""
 
+    @property
+    def imu_used(self) -> int:
+        """IMU transfers that became samples (of :attr:`imu_types`), as ``MavlinkDecoder.imu_used``."""
+        return sum(self.used[name] for name in self.imu_types)
+
     def feed(self, msg: can.Message) -> list[Sample]:
         """Samples completed by this frame (empty for a frame in the middle of a transfer)."""
         can_id = msg.arbitration_id

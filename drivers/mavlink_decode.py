@@ -137,6 +137,7 @@ class MavlinkDecoder(Decoder):
         }
         for name in SCALED_IMU_INSTANCE:
             self._handlers[getattr(mod, f"MAVLink_{name.lower()}_message")] = self._scaled_imu
+        self._imu_kinds = tuple(getattr(mod, f"MAVLink_{name.lower()}_message") for name in IMU_MESSAGES)
         self._screen = screen
         self._set_screen()
 
@@ -169,6 +170,11 @@ class MavlinkDecoder(Decoder):
     def used(self) -> Counter[str]:
         """Messages that became samples, by type name."""
         return Counter({kind.msgname: n for kind, n in self._used.items()})
+
+    @property
+    def imu_used(self) -> int:
+        """IMU messages that became samples (of :attr:`imu_types`; cheap enough to ask at every poll)."""
+        return sum(self._used.get(kind, 0) for kind in self._imu_kinds)
 
     def _decode_all(self, messages: list[Any]) -> list[Sample]:
         """Samples of valid messages; the others are counted (not from the vehicle, ignored, refused)."""

@@ -73,7 +73,7 @@ class StreamRequester:
 
     def poll(self, now_ns: int, decoder: MavlinkDecoder) -> int:
         """Send the requests if due at ``now_ns`` (a monotonic clock); returns how many messages were asked for."""
-        imu = sum(decoder.used[m] for m in decoder.imu_types)
+        imu = decoder.imu_used
         if imu != self._imu_seen:
             self._imu_seen, self._imu_ns = imu, now_ns
         if decoder.system is None or decoder.autopilot is None:

@@ -142,7 +142,7 @@ def source_report(name: str, source: Any) -> InputReport:
     """The decoder's view of a live source (IMU samples accepted, not what the loop took): its IMU messages (DroneCAN
     RawIMU transfers) decoded and used; under 90 % used, the report warns (it said "0 of 0" for a CAN bus)."""
     decoder = source.decoder
-    return InputReport(name, _imu_decodable(decoder), sum(decoder.used[m] for m in decoder.imu_types), dict(source.stats))
+    return InputReport(name, _imu_decodable(decoder), decoder.imu_used, dict(source.stats))
 
 
 def sim_ticks(flight: Flight, transport: str = "mavlink") -> Iterator[tuple[int, object, list[Sample]]]:

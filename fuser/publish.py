@@ -279,16 +279,17 @@ def listen(
     fell behind. Returns how many were printed.
     """
     arrived: queue.Queue[tuple[str, Estimate, bytes]] = queue.Queue(MAX_WAITING)
-    dropped: Counter[str] = Counter()
+    dropped = 0
     dropping = threading.Lock()
 
     def on_attitude(name: str, payload: bytes) -> None:
+        nonlocal dropped
         estimate = Estimate.from_json(payload)  # MalformedPayload: counted by the subscription
         try:
             arrived.put_nowait((name, estimate, payload))
         except queue.Full:
-            with dropping:
-                dropped["estimates"] += 1
+            with dropping:  # zenoh may call from more than one thread
+                dropped += 1
 
     printed = 0
     with Subscription(config, vehicle, {"attitude": on_attitude}) as subscription:
@@ -315,6 +316,6 @@ def listen(
     if ignored or dropped:
         what = [f"ignored {sum(ignored.values())} payloads that are not estimates ("
                 + ", ".join(f"{k.removeprefix('attitude: ')}: {v}" for k, v in sorted(ignored.items())) + ")"] if ignored else []
-        what += [f"dropped {dropped['estimates']} estimates while printing fell behind"] if dropped else []
+        what += [f"dropped {dropped} estimates while printing fell behind"] if dropped else []
         print("listen: " + "; ".join(what), file=err, flush=True)
     return printed
