@@ -120,15 +120,16 @@ def _score(output: str) -> tuple[float | None, str | None]:
     return score.rms["total"], score.reference.name + (" (circular)" if score.circular else "")
 
 
-def run_task(task: LogTask) -> LogResult:
-    """Replay one log and score it; any error becomes a failed result (this runs in a worker)."""
+def run_task(task: LogTask, notice: Callable[[], None] | None = None) -> LogResult:
+    """Replay one log and score it; any error becomes a failed result (this runs in a worker, or in the batch's
+    process with ``notice``, :func:`fuser.replay.replay`'s)."""
     from fuser.replay import replay
 
     problem = log_file_problem(task.log)
     if problem is not None:
         return _failed(task, problem)
     try:
-        summary = replay(task.log, task.output, task.config, progress=None)  # a log with nothing to fuse raises
+        summary = replay(task.log, task.output, task.config, progress=None, notice=notice)  # a log with nothing to fuse raises
         error_deg, reference = _score(task.output)
     except Exception as exc:  # noqa: BLE001 - one log's failure is a row of the summary, not the end of the batch
         return _failed(task, _one_line(exc))
@@ -261,16 +262,27 @@ def run_batch(
     jobs: int = 1,
     dask_address: str | None = None,
     progress: TextIO | None = None,
+    notice: Callable[[], None] | None = None,
 ) -> list[LogResult]:
     """Replay every log into ``out_dir`` (created), with ``jobs`` local processes (1: in this process)
     or on the Dask cluster at ``dask_address``; results in the order of ``logs``.
 
-    ``progress``: a stream for one progress bar over all logs, shown only if it is a terminal.
+    ``progress``: a stream for one progress bar over all logs, shown only if it is a terminal. ``notice``: called
+    once if the filter's kernels have been compiling for :data:`fuser.compiling.NOTICE_AFTER_S` (the first run after
+    installing). Before local worker processes start, the kernels are compiled here (:func:`fuser.warmup.warm_up`),
+    once, and every worker loads them from numba's cache: otherwise each worker compiled the same kernels side by
+    side without a word (three logs, ``--jobs 2``, an empty cache: 30 s of wall, 54 s of CPU) and wrote the same
+    cache entries at once. Dask workers compile their own (they may be other machines, with their own caches).
     """
     if jobs < 1:
         raise BatchError(f"--jobs must be at least 1, got {jobs}")
     tasks = _tasks(logs, out_dir, config)
     Path(out_dir).mkdir(parents=True, exist_ok=True)
+    in_processes = dask_address is None and jobs > 1 and len(tasks) > 1
+    if in_processes:
+        from fuser.warmup import warm_up
+
+        warm_up(config, notice)
     results: dict[str, LogResult] = {}
     bar = _bar(len(tasks), progress)
 
@@ -282,11 +294,11 @@ def run_batch(
     try:
         if dask_address is not None:
             _on_dask(tasks, dask_address, done)
-        elif jobs == 1 or len(tasks) == 1:
-            for task in tasks:
-                done(run_task(task))
-        else:
+        elif in_processes:
             _in_processes(tasks, min(jobs, len(tasks)), done)
+        else:
+            for task in tasks:
+                done(run_task(task, notice))
     finally:
         bar.close()
     return [results[t.output] for t in tasks]
@@ -372,8 +384,8 @@ def is_batch(args: argparse.Namespace) -> bool:
     return args.output is None or len(args.log) > 1 or args.out_dir is not None or args.jobs is not None or args.dask is not None
 
 
-def command(args: argparse.Namespace, config: FuserConfig) -> int:
-    """``bingham-fuser replay LOG... --out-dir DIR [--jobs N | --dask ADDRESS]``."""
+def command(args: argparse.Namespace, config: FuserConfig, notice: Callable[[], None] | None = None) -> int:
+    """``bingham-fuser replay LOG... --out-dir DIR [--jobs N | --dask ADDRESS]``; ``notice`` as :func:`run_batch`'s."""
     if args.output is not None:
         what = "several logs" if len(args.log) > 1 else "--out-dir, --jobs and --dask"
         print(f"replay: -o is for one log; {what} need --out-dir DIR instead", file=sys.stderr)
@@ -383,7 +395,7 @@ def command(args: argparse.Namespace, config: FuserConfig) -> int:
         return 2
     start = time.monotonic()
     try:
-        results = run_batch(args.log, args.out_dir, config, args.jobs or _cores(), args.dask, progress=sys.stderr)
+        results = run_batch(args.log, args.out_dir, config, args.jobs or _cores(), args.dask, progress=sys.stderr, notice=notice)
     except BatchError as exc:
         print(f"replay: {exc}", file=sys.stderr)
         return 2

@@ -661,7 +661,7 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
     if batch.is_batch(args):
         if args.out_dir is not None:
             _check_output_folder(args.out_dir, "--out-dir")
-        return batch.command(args, config)
+        return batch.command(args, config, notice=_say_compiling)
     log = args.log[0]
     _check_output(args.output, "--output")
     summary = replay(log, args.output, config, notice=_say_compiling)
