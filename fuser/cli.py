@@ -37,7 +37,7 @@ import traceback
 from contextlib import ExitStack
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable, NoReturn, Sequence
+from typing import Any, Callable, Iterable, NoReturn, Sequence
 
 from drivers.base import SourceError
 from drivers.scenarios import SCENARIOS
@@ -375,12 +375,26 @@ def _check_signing_key(config: FuserConfig) -> None:
         raise UsageError(str(exc)) from exc
 
 
-def _check_output(path: str, option: str) -> None:
-    """A file can be written at ``path``: not a folder nor a read-only file, in a folder that exists and is writable.
-    Checked before the command starts, so it fails at once with one line (a recorder process would die on it)."""
+def _read_files(args: argparse.Namespace) -> list[tuple[str, str]]:
+    """The files the command reads, each with what it is: its logs, ``--config``, ``--signing-key-file``."""
+    logs = getattr(args, "log", None) or getattr(args, "source", None) or []
+    named = [("the input log", log) for log in ([logs] if isinstance(logs, str) else logs)]
+    named += [(f"the {option} file", getattr(args, attr, None)) for option, attr in
+              (("--config", "config"), ("--signing-key-file", "signing_key_file"))]
+    return [(what, path) for what, path in named if path]
+
+
+def _check_output(path: str, option: str, reads: Iterable[tuple[str, str]] = ()) -> None:
+    """A file can be written at ``path``: not a folder nor a read-only file, in a folder that exists and is writable,
+    and none of the files the command reads (``reads``, :func:`_read_files`): a replay or an import would replace its
+    own input (``replay flight.BIN -o flight.BIN`` left an MCAP where the DataFlash log had been). Checked before the
+    command starts, so it fails at once with one line (a recorder process would die on it)."""
     target = Path(path)
     if target.is_dir():
         raise UsageError(f"cannot write {option} {path}: it is a folder; name a file (in it, or elsewhere)")
+    for what, read in reads:
+        if target.resolve() == Path(read).resolve() or (target.exists() and Path(read).exists() and os.path.samefile(target, read)):
+            raise UsageError(f"cannot write {option} {path}: it is {what} {read}, which would be lost; name another file")
     if target.exists() and not os.access(target, os.W_OK):
         raise UsageError(f"cannot write {option} {path}: the file is not writable")
     folder = target.resolve().parent
@@ -517,10 +531,10 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         from fuser.sender import run_sender
 
         if args.truth:
-            _check_output(args.truth, "--truth")
+            _check_output(args.truth, "--truth", _read_files(args))
         return run_sender(args, _stop_on_signal())
     if args.record:
-        _check_output(args.record, "--record")
+        _check_output(args.record, "--record", _read_files(args))
     clock = WallClock.start(args.speed) if args.speed > 0 else None
     with ExitStack() as stack:
         config = _beside_ros2_router(config, args)
@@ -612,7 +626,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
     _check_run(args)
     _check_signing_key(config)
     if args.record:
-        _check_output(args.record, "--record")
+        _check_output(args.record, "--record", _read_files(args))
     from drivers.sources import DroneCanSource, MavlinkSource
     from fuser.inputs import silence_hint, source_report
     from fuser.live import LiveRunner
@@ -663,7 +677,7 @@ def _cmd_replay(args: argparse.Namespace, config: FuserConfig) -> int:
             _check_output_folder(args.out_dir, "--out-dir")
         return batch.command(args, config, notice=_say_compiling)
     log = args.log[0]
-    _check_output(args.output, "--output")
+    _check_output(args.output, "--output", _read_files(args))
     summary = replay(log, args.output, config, notice=_say_compiling)
     if summary.imported is not None:
         _print_not_imported(log, summary.imported)
@@ -697,10 +711,11 @@ def _cmd_import(args: argparse.Namespace, config: None) -> int:  # noqa: ARG001
     from fuser.importers import read_sensor_log, write_mcap
 
     check_log_file(args.source, "import")
-    _check_output(args.output, "--output")
+    _check_output(args.output, "--output", _read_files(args))
     cfg_out = str(Path(args.output).with_suffix(".toml")) if args.config_out is None else (args.config_out or None)
     if cfg_out is not None:
-        _check_output(cfg_out, "--config-out")
+        _check_output(cfg_out, "--config-out" if args.config_out else "the settings file (--output with .toml, or --config-out)",
+                      [*_read_files(args), ("the --output file", args.output)])
     try:
         data = read_sensor_log(args.source, args.format, args.start, args.duration, progress=sys.stderr)
     except UsageError as exc:

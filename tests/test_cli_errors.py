@@ -75,6 +75,18 @@ CASES: dict[str, Case] = {
                             (f"tcp:127.0.0.1:{CLOSED_PORT}", "refused")),
     "can-unknown-interface": Case(["run", "--can", "nope:can0", "--no-zenoh"], 2, ("unknown CAN interface 'nope'", "socketcan")),
     "can-unknown-channel": Case(["run", "--can", "slcan:/dev/no-such-adapter", "--no-zenoh"], 1, ("cannot open CAN bus", "/dev/no-such-adapter")),
+    # an output that is one of the command's own inputs: refused before anything is read or written
+    "replay-onto-its-log": Case(["replay", "in.mcap", "-o", "./in.mcap"], 2, ("cannot write --output ./in.mcap", "input log in.mcap"),
+                                {"in.mcap": LOG.read_bytes()}),
+    "replay-onto-its-dataflash-log": Case(["replay", "flight.BIN", "-o", "flight.BIN"], 2, ("input log flight.BIN", "would be lost"),
+                                          {"flight.BIN": RANDOM}),
+    "replay-onto-its-config": Case(["replay", str(LOG), "-o", "c.toml", "--config", "c.toml"], 2, ("--config file c.toml",),
+                                   {"c.toml": _text("[fuser]\nrate_hz = 100.0\n")}),
+    "import-onto-its-log": Case(["import", "flight.bin", "-o", "flight.bin"], 2, ("input log flight.bin",), {"flight.bin": RANDOM}),
+    "import-settings-onto-its-output": Case(["import", "flight.bin", "-o", "flight.toml"], 2,
+                                            ("settings file", "flight.toml: it is the --output file"), {"flight.bin": RANDOM}),
+    "record-onto-its-config": Case(["run", "--mavlink", f"udpin:127.0.0.1:{CLOSED_PORT}", "--no-zenoh", "--duration", "1", "--record", "c.toml",
+                                    "--config", "c.toml"], 2, ("--config file c.toml",), {"c.toml": _text("[fuser]\nrate_hz = 100.0\n")}),
     # configuration
     "config-wrong-type": Case(["replay", str(LOG), "-o", "out.mcap", "--config", "c.toml"], 2, ("fuser.rate_hz", "fast"),
                               {"c.toml": _text(BAD_FUSER + 'rate_hz = "fast"\n')}),
@@ -99,6 +111,8 @@ class Result:
     stderr: str
     stdout: str
     left: set[str]
+    changed: set[str]
+    """The case's own files whose bytes the command changed."""
 
 
 @pytest.fixture(scope="module")
@@ -119,7 +133,8 @@ def results(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Result]:
         out = {}
         for name, (proc, folder) in procs.items():
             stdout, stderr = proc.communicate(timeout=120)
-            out[name] = Result(proc.returncode, stderr, stdout, {p.name for p in folder.iterdir()})
+            changed = {f for f, data in CASES[name].files.items() if (folder / f).is_file() and (folder / f).read_bytes() != data}
+            out[name] = Result(proc.returncode, stderr, stdout, {p.name for p in folder.iterdir()}, changed)
         return out
     finally:
         for proc, _ in procs.values():
@@ -140,6 +155,7 @@ def test_bad_input_is_one_line_and_an_exit_code(name: str, results: dict[str, Re
         assert text in lines[0], lines[0]
     assert r.code == case.code, lines[0]
     assert r.left == set(case.files) | set(case.writes), f"stray output: {r.left - set(case.files)}"
+    assert not r.changed, f"changed: {r.changed}"
 
 
 def test_verbose_shows_the_traceback_then_the_line(tmp_path: Path) -> None:
@@ -322,3 +338,16 @@ def test_an_option_overridden_by_another_is_warned_about(argv: list[str], warnin
     {"sim": cli._check_sim, "run": cli._check_run, "listen": cli._check_listen}[argv[0]](args)
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and err[0].startswith("bingham-fuser: warning: ") and warning in err[0], err
+
+
+@pytest.mark.parametrize("link", ["symbolic", "hard"])
+def test_an_output_that_is_the_input_under_another_name_is_refused(link: str, tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """``replay flight.mcap -o other.mcap`` where other.mcap is a link to flight.mcap: the same file, refused."""
+    from fuser.cli import main
+
+    log, other = tmp_path / "flight.mcap", tmp_path / "other.mcap"
+    log.write_bytes(LOG.read_bytes())
+    other.symlink_to(log) if link == "symbolic" else os.link(log, other)
+    assert main(["replay", str(log), "-o", str(other)]) == 2
+    assert f"it is the input log {log}" in capsys.readouterr().err
+    assert log.read_bytes() == LOG.read_bytes()
