@@ -23,7 +23,11 @@ from scipy.stats import chi2
 
 from core import quaternion as quat
 
-__all__ = ["AttitudeErrors", "attitude_errors", "credible_level", "tilt_credible_level"]
+__all__ = ["REGIONS", "AttitudeErrors", "attitude_errors", "credible_level", "tilt_credible_level"]
+
+REGIONS = (0.5, 0.9, 0.95)
+"""The credible regions whose coverage a score reports: an honest uncertainty holds the truth in each about as often
+as its mass (more often is too wide, less often overconfident)."""
 
 
 @dataclass(frozen=True)
@@ -39,14 +43,28 @@ class AttitudeErrors:
     """The estimates compared (w, x, y, z), one row per time."""
     q_ref: NDArray[np.float64]
     """The reference interpolated (slerp) at the same times."""
+    level: NDArray[np.float64] | None = None
+    """Per estimate, the smallest credible region of its Bingham that holds the reference (:func:`credible_level`);
+    None when the estimates' Binghams were not given."""
+
+    def _since(self, since_s: float) -> NDArray[np.bool_]:
+        return (self.t_ns - self.t_ns[0]) >= since_s * 1e9
 
     def rms(self, since_s: float = 0.0) -> dict[str, float]:
         """RMS of each error (degrees) over estimates at least ``since_s`` after the first."""
-        keep = (self.t_ns - self.t_ns[0]) >= since_s * 1e9
+        keep = self._since(since_s)
         return {
             name: float(np.sqrt(np.mean(values[keep] ** 2)))
             for name, values in (("total", self.total_deg), ("tilt", self.tilt_deg), ("heading", self.heading_deg), ("uncertainty", self.uncertainty_deg))
         }
+
+    def coverage(self, since_s: float = 0.0) -> dict[float, float]:
+        """For each of :data:`REGIONS`, the fraction of the estimates at least ``since_s`` after the first whose
+        credible region of that mass holds the reference (empty without :attr:`level`)."""
+        if self.level is None:
+            return {}
+        level = self.level[self._since(since_s)]
+        return {a: float(np.mean(level <= a)) for a in REGIONS} if level.size else {}
 
 
 def _yaw(q: NDArray) -> NDArray:
@@ -66,9 +84,11 @@ def _usable_reference(ref_t: NDArray, q_ref: NDArray) -> tuple[NDArray, NDArray]
 
 
 def attitude_errors(
-    t_ns: NDArray, q_est: NDArray, uncertainty_deg: NDArray, ref_t_ns: NDArray, q_ref: NDArray
+    t_ns: NDArray, q_est: NDArray, uncertainty_deg: NDArray, ref_t_ns: NDArray, q_ref: NDArray,
+    bingham: tuple[NDArray, NDArray] | None = None,
 ) -> AttitudeErrors:
-    """Compare estimates (w, x, y, z) with a reference sampled at ``ref_t_ns``.
+    """Compare estimates (w, x, y, z) with a reference sampled at ``ref_t_ns``; with ``bingham``, the estimates'
+    ``(M, Z)`` (n x 4 x 4, n x 4), also the credible level of the reference in each (:attr:`AttitudeErrors.level`).
 
     The reference is used in time order whatever order it comes in (a log's
     attitude messages are in receive order; a sender's clock can step back),
@@ -80,7 +100,7 @@ def attitude_errors(
     if ref_t.size < 2:
         inside = np.zeros(t_ns.shape, dtype=bool)
         empty, no_q = np.zeros(0), np.zeros((0, 4))
-        return AttitudeErrors(t_ns[inside], empty, empty, empty, empty, no_q, no_q)
+        return AttitudeErrors(t_ns[inside], empty, empty, empty, empty, no_q, no_q, None if bingham is None else empty)
     inside = (t_ns >= ref_t[0]) & (t_ns <= ref_t[-1])
     t_ns = t_ns[inside]
     q_est = np.asarray(q_est, dtype=float)[inside]
@@ -100,6 +120,7 @@ def attitude_errors(
         np.asarray(uncertainty_deg, dtype=float)[inside],
         q_est,
         q_r,
+        None if bingham is None else credible_level(np.asarray(bingham[0], dtype=float)[inside], np.asarray(bingham[1], dtype=float)[inside], q_r),
     )
 
 

@@ -24,7 +24,7 @@ loop and the model over time) and ``summary.md`` beside them.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
@@ -35,7 +35,7 @@ from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample, Quat
 from fuser.codec import Estimate, decode_sample, loads
 from fuser.errors import UsageError
-from fuser.evaluate import AttitudeErrors, attitude_errors
+from fuser.evaluate import REGIONS, AttitudeErrors, attitude_errors
 from fuser.frames import orientation_covariance_ned
 from fuser.record import LogContents, LogStream, _quat_wxyz, read_log
 
@@ -138,7 +138,8 @@ def errors_of_log(path: str | Path, contents: LogContents | None = None) -> tupl
     t = np.array([e.sensor_t_ns for e in estimates], dtype=np.int64)
     q = np.array([e.q_wxyz for e in estimates], dtype=float)
     unc = np.array([e.uncertainty_deg for e in estimates], dtype=float)
-    return kind, attitude_errors(t, q, unc, ref_t, ref_q)
+    bingham = np.array([e.M for e in estimates], dtype=float), np.array([e.Z for e in estimates], dtype=float)
+    return kind, attitude_errors(t, q, unc, ref_t, ref_q, bingham)
 
 
 def _circular(contents: LogContents, ref: Reference) -> str | None:
@@ -172,14 +173,24 @@ def _span_window(first_ns: int, last_ns: int, since_s: float) -> float:
     return since_s if (last_ns - first_ns) * 1e-9 > since_s else 0.0
 
 
-def _score_lines(ref: Reference, rms: dict[str, float], since_s: float) -> list[str]:
-    """The score's two lines: the RMS errors (:meth:`AttitudeErrors.rms`) after ``since_s``."""
+def _score_lines(ref: Reference, rms: dict[str, float], since_s: float, coverage: dict[float, float]) -> list[str]:
+    """The score's lines: the RMS errors (:meth:`AttitudeErrors.rms`) after ``since_s``, and how often the estimates'
+    credible regions held the reference (:meth:`AttitudeErrors.coverage`; its line left out when it is empty)."""
     window = f"after the first {since_s:g} s" if since_s > 0 else "over the whole flight, convergence included"
-    return [
+    lines = [
         f"error against {ref.name} {window} (RMS, degrees):",
         f"  total {rms['total']:.2f}   tilt {rms['tilt']:.2f}   heading {rms['heading']:.2f}   "
         f"reported uncertainty {rms['uncertainty']:.2f}",
     ]
+    if coverage:
+        lines.append(f"  {ref.name} inside the {_regions()} % credible regions: "
+                     f"{' / '.join(f'{100 * coverage[a]:.0f}' for a in REGIONS)} % of the time (honest: about {_regions()})")
+    return lines
+
+
+def _regions() -> str:
+    """``50 / 90 / 95``: :data:`~fuser.evaluate.REGIONS` in percent."""
+    return " / ".join(f"{100 * a:g}" for a in REGIONS)
 
 
 def score_log(path: str | Path, since_s: float = CONVERGENCE_S) -> list[str]:
@@ -191,7 +202,7 @@ def score_log(path: str | Path, since_s: float = CONVERGENCE_S) -> list[str]:
         return [f"{path}: {score.unscored}"]
     if score.matched == 0:
         return [f"{path}: no estimate within the time span of the {score.reference.name} to score against"]
-    return _score_lines(score.reference, score.rms, score.since_s) + ([score.circular] if score.circular else [])
+    return _score_lines(score.reference, score.rms, score.since_s, score.coverage) + ([score.circular] if score.circular else [])
 
 
 @dataclass(frozen=True)
@@ -210,6 +221,8 @@ class StreamedScore:
     """RMS ``total``, ``tilt``, ``heading`` and ``uncertainty``, degrees (empty when nothing was scored)."""
     circular: str | None = None
     """:func:`_circular`'s note, or None."""
+    coverage: dict[float, float] = field(default_factory=dict)
+    """As :meth:`AttitudeErrors.coverage` gives it over the same estimates as ``rms`` (empty when nothing was scored)."""
 
 
 ESTIMATES_PER_BLOCK = 65_536
@@ -228,6 +241,8 @@ class _SquareSums:
         self.last_ns: int | None = None
         self.count = {"all": 0, "since": 0}
         self.sums = {window: dict.fromkeys(self.NAMES, 0.0) for window in self.count}
+        self.inside = {window: dict.fromkeys(REGIONS, 0) for window in self.count}
+        """Estimates whose credible region of each mass held the reference."""
 
     def add(self, err: AttitudeErrors) -> None:
         """Add one block's errors (its estimates in log-time order, after the blocks added before)."""
@@ -243,11 +258,21 @@ class _SquareSums:
             squares = values**2
             self.sums["all"][name] += float(np.sum(squares))
             self.sums["since"][name] += float(np.sum(squares[since]))
+        assert err.level is not None  # stream_score passes every estimate's Bingham
+        for a in REGIONS:
+            held = err.level <= a
+            self.inside["all"][a] += int(np.count_nonzero(held))
+            self.inside["since"][a] += int(np.count_nonzero(held[since]))
 
     def rms(self, window: str) -> dict[str, float]:
         """The RMS of each error over ``window`` (``all`` or ``since``)."""
         n = self.count[window]
         return {name: math.sqrt(total / n) if n else math.nan for name, total in self.sums[window].items()}
+
+    def coverage(self, window: str) -> dict[float, float]:
+        """The fraction of the estimates over ``window`` whose credible region of each mass held the reference."""
+        n = self.count[window]
+        return {a: held / n for a, held in self.inside[window].items()} if n else {}
 
 
 def stream_score(path: str | Path, since_s: float = CONVERGENCE_S) -> StreamedScore:
@@ -260,16 +285,17 @@ def stream_score(path: str | Path, since_s: float = CONVERGENCE_S) -> StreamedSc
     reference = _reference_samples(log)
     sums = _SquareSums(since_s)
     estimates = _Estimates()
-    for t, q, unc in estimates.blocks(log):
+    for t, q, unc, M, Z in estimates.blocks(log):
         if reference is not None:
-            sums.add(attitude_errors(t, q, unc, *reference))
+            sums.add(attitude_errors(t, q, unc, *reference, bingham=(M, Z)))
     if not estimates.timed or reference is None:
         return StreamedScore(ref, _why_unscored(path, estimates.count, estimates.timed), 0, since_s, {})
     if sums.first_ns is None or sums.last_ns is None:
         return StreamedScore(ref, None, 0, since_s, {})
     window = _span_window(sums.first_ns, sums.last_ns, since_s)
     circular = _circular_note(ref, topics["/input/attitude"], estimates.last_counters)
-    return StreamedScore(ref, None, sums.count["all"], window, sums.rms("since" if window > 0 else "all"), circular)
+    scored = "since" if window > 0 else "all"
+    return StreamedScore(ref, None, sums.count["all"], window, sums.rms(scored), circular, sums.coverage(scored))
 
 
 def _reference_samples(log: LogStream) -> tuple[NDArray, NDArray] | None:
@@ -302,12 +328,14 @@ class _Estimates:
         self.last_counters: dict[str, int] = {}
         """The counters of the last estimate in log-time order."""
 
-    def blocks(self, log: LogStream) -> Iterator[tuple[NDArray, NDArray, NDArray]]:
-        """The estimates with an IMU time, in log-time order, as (IMU times, quaternions, uncertainties) arrays of
-        at most :data:`ESTIMATES_PER_BLOCK`."""
+    def blocks(self, log: LogStream) -> Iterator[tuple[NDArray, ...]]:
+        """The estimates with an IMU time, in log-time order, as (IMU times, quaternions, uncertainties, Bingham
+        ``M``, ``Z``) arrays of at most :data:`ESTIMATES_PER_BLOCK`."""
         t: list[int] = []
         q: list[list[float]] = []
         unc: list[float] = []
+        M: list[list[list[float]]] = []
+        Z: list[list[float]] = []
         for m in log.messages(["/estimate"]):
             d = loads(m.data)
             self.count += 1
@@ -318,15 +346,17 @@ class _Estimates:
             t.append(d["sensor_t_ns"])
             q.append(d["q_wxyz"])
             unc.append(float(d["uncertainty_deg"]))
+            M.append(d["M"])
+            Z.append(d["Z"])
             if len(t) == ESTIMATES_PER_BLOCK:
-                yield _arrays(t, q, unc)
-                t, q, unc = [], [], []
+                yield _arrays(t, q, unc, M, Z)
+                t, q, unc, M, Z = [], [], [], [], []
         if t:
-            yield _arrays(t, q, unc)
+            yield _arrays(t, q, unc, M, Z)
 
 
-def _arrays(t: list[int], q: list[list[float]], unc: list[float]) -> tuple[NDArray, NDArray, NDArray]:
-    return np.array(t, dtype=np.int64), np.array(q, dtype=float), np.array(unc, dtype=float)
+def _arrays(t: list[int], *values: list) -> tuple[NDArray, ...]:
+    return np.array(t, dtype=np.int64), *(np.array(v, dtype=float) for v in values)
 
 
 def _euler_deg(q: NDArray) -> NDArray:
@@ -456,7 +486,7 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
     plt.close(fig)
 
     circular = _circular(contents, ref)
-    lines = _score_lines(ref, rms, since_s) + ([circular] if circular else [])
+    lines = _score_lines(ref, rms, since_s, err.coverage(since_s)) + ([circular] if circular else [])
     (out_dir / "summary.md").write_text(_summary(Path(path).name, ref, err, rms, since_s, final)
                                         + (f"\n**Note:** {circular.removeprefix('note: ')}.\n" if circular else ""))
     return lines + [f"report: {out_dir / 'summary.md'}, attitude.png, error.png, counters.png"]
@@ -468,6 +498,7 @@ def _summary(log_name: str, ref: Reference, err: AttitudeErrors, rms: dict[str, 
     kind = "ground truth" if ref.ground_truth else "another estimator, not ground truth: the figures are agreement, not accuracy"
     duration = (err.t_ns[-1] - err.t_ns[0]) * 1e-9
     rows = "\n".join(f"| {name} | {rms[name]:.2f} |" for name in ("total", "tilt", "heading", "uncertainty"))
+    inside = "\n".join(f"| {100 * a:g} % | {100 * f:.1f} % |" for a, f in err.coverage(since_s).items())
     counts = "\n".join(f"| {k} | {v} |" for k, v in counters.items())
     return f"""# bingham-fuser report: {log_name}
 
@@ -479,6 +510,13 @@ RMS {window}, degrees ("uncertainty" is the RMS of the reported uncertainty):
 | error | RMS [deg] |
 | --- | --- |
 {rows}
+
+How often the {ref.name} lay inside the estimate's credible region, over the same estimates: an honest uncertainty
+holds it about as often as the region's mass; more often, it is wider than it needs to be; less often, overconfident.
+
+| credible region | {ref.name} inside |
+| --- | --- |
+{inside}
 
 Counters at the end of the log:
 

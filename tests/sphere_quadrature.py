@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 
-def _sphere_grid(n_dim: int, nodes: int) -> tuple[np.ndarray, np.ndarray]:
+def sphere_grid(n_dim: int, nodes: int) -> tuple[np.ndarray, np.ndarray]:
     """Points (n_dim, K) and weights (K,) of a quadrature over S^(n_dim - 1)."""
     g, gw = np.polynomial.legendre.leggauss(nodes)
     polar = (g + 1.0) * np.pi / 2.0
@@ -38,7 +38,7 @@ def _sphere_grid(n_dim: int, nodes: int) -> tuple[np.ndarray, np.ndarray]:
 def brute_force(z: np.ndarray, nodes: int = 120) -> tuple[float, np.ndarray]:
     """``log N(diag(z))`` and ``E[x_i^2]`` by direct integration over the sphere."""
     z = np.asarray(z, dtype=float)
-    x, w = _sphere_grid(z.shape[0], nodes)
+    x, w = sphere_grid(z.shape[0], nodes)
     expo = z @ (x * x)
     f = w * np.exp(expo - z.max())
     total = f.sum()

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 from core import quaternion as quat
 from core.bingham import Bingham, composition_inertia
 from core.normalization import moments_jacobian
-from sphere_quadrature import _sphere_grid
+from sphere_quadrature import sphere_grid
 
 RNG = np.random.default_rng(2024)
 
@@ -21,7 +21,7 @@ def random_bingham(z3, rng=RNG):
 
 def sphere_integral(f, nodes=70):
     """Integral of f(x) over S^3 by brute-force quadrature (x: (K, 4))."""
-    x, w = _sphere_grid(4, nodes)
+    x, w = sphere_grid(4, nodes)
     return float(np.sum(w * f(x.T)))
 
 

@@ -73,7 +73,7 @@ def _whole_log_score(path: Path) -> list[str]:
         return [f"{path}: no estimate within the time span of the {ref.name} to score against"]
     circular = report._circular(contents, ref)
     since_s = report._window(err, report.CONVERGENCE_S)
-    return report._score_lines(ref, err.rms(since_s), since_s) + ([circular] if circular else [])
+    return report._score_lines(ref, err.rms(since_s), since_s, err.coverage(since_s)) + ([circular] if circular else [])
 
 
 @pytest.mark.parametrize("block", [100_000, 700], ids=["one_block", "many_blocks"])
