@@ -82,6 +82,8 @@ class LogResult:
     error_deg: float | None = None
     """RMS total error against ``reference`` after the first ``SCORE_SINCE_S`` seconds (all of a shorter log)."""
     reference: str | None = None
+    inside_90: float | None = None
+    """The share of those estimates whose 90 % credible region held the reference (calibrated: about 0.9)."""
     not_imported: dict[str, int] = field(default_factory=dict)
     """For a log replayed through ``import`` (DataFlash, ULog, BROAD): what the import left out, by reason."""
     input_warning: str | None = None
@@ -107,17 +109,18 @@ def _failed(task: LogTask, reason: str) -> LogResult:
     return LogResult(task.log, task.output, False, reason)
 
 
-def _score(output: str) -> tuple[float | None, str | None]:
-    """The RMS total error of ``output``'s estimates and its reference's name, as ``report`` names it (simulator
+def _score(output: str) -> tuple[float | None, str | None, float | None]:
+    """The RMS total error of ``output``'s estimates, its reference's name, as ``report`` names it (simulator
     truth, motion capture, EKF2, ...: an autopilot's estimate is not called truth), marked ``(circular)`` where the
-    fuser fused that autopilot's attitude (``replay`` prints why). The output is read as a stream
-    (:func:`fuser.report.stream_score`), so scoring a long log takes no more memory than a short one."""
+    fuser fused that autopilot's attitude (``replay`` prints why), and the share of the estimates whose 90 % credible
+    region held it. The output is read as a stream (:func:`fuser.report.stream_score`), so scoring a long log takes no
+    more memory than a short one."""
     from fuser.report import stream_score
 
     score = stream_score(output, SCORE_SINCE_S)
     if score.unscored is not None or score.matched == 0:  # no reference, or none within the estimates' time span
-        return None, None
-    return score.rms["total"], score.reference.name + (" (circular)" if score.circular else "")
+        return None, None, None
+    return score.rms["total"], score.reference.name + (" (circular)" if score.circular else ""), score.coverage.get(0.9)
 
 
 def run_task(task: LogTask, notice: Callable[[], None] | None = None) -> LogResult:
@@ -130,7 +133,7 @@ def run_task(task: LogTask, notice: Callable[[], None] | None = None) -> LogResu
         return _failed(task, problem)
     try:
         summary = replay(task.log, task.output, task.config, progress=None, notice=notice)  # a log with nothing to fuse raises
-        error_deg, reference = _score(task.output)
+        error_deg, reference, inside_90 = _score(task.output)
     except Exception as exc:  # noqa: BLE001 - one log's failure is a row of the summary, not the end of the batch
         return _failed(task, _one_line(exc))
     counters = summary.counters
@@ -138,7 +141,7 @@ def run_task(task: LogTask, notice: Callable[[], None] | None = None) -> LogResu
     warning = None if summary.inputs is None else summary.inputs.warning()
     return LogResult(task.log, task.output, True, samples=summary.samples, estimates=summary.estimates, seconds=summary.seconds,
                      compile_seconds=summary.compile_seconds, accepted=counters.get("samples", 0), rejected=rejected,
-                     error_deg=error_deg, reference=reference, not_imported=dict(summary.imported or {}), input_warning=warning,
+                     error_deg=error_deg, reference=reference, inside_90=inside_90, not_imported=dict(summary.imported or {}), input_warning=warning,
                      input_refused=summary.inputs.refused if warning is not None else {})  # type: ignore[union-attr]
 
 
@@ -318,17 +321,19 @@ def _listed(counts: dict[str, int]) -> str:
 def format_summary(results: Iterable[LogResult], wall_s: float | None = None) -> list[str]:
     """The summary table, one row per log, and a closing line with the totals."""
     results = list(results)
-    head = ("log", "status", "samples", "estimates", "seconds", "samples/s", "accepted", "late+gated", "error (deg RMS)")
+    head = ("log", "status", "samples", "estimates", "seconds", "samples/s", "accepted", "late+gated", "in 90 % region",
+            "error (deg RMS)")
     rows = []
     for r in results:
         if r.ok:
             error = "-" if r.error_deg is None else f"{r.error_deg:.2f} vs {r.reference}"
+            inside = "-" if r.inside_90 is None else f"{100 * r.inside_90:.0f} %"
             rows.append((r.log, "ok", f"{r.samples:,}", f"{r.estimates:,}", f"{r.seconds:.2f}", f"{r.samples_per_s:,.0f}",
-                         f"{r.accepted:,}", f"{r.rejected:,}", error))
+                         f"{r.accepted:,}", f"{r.rejected:,}", inside, error))
         else:
-            rows.append((r.log, "failed", "", "", "", "", "", "", r.reason))
+            rows.append((r.log, "failed", "", "", "", "", "", "", "", r.reason))
     widths = [max(len(row[i]) for row in [head, *rows]) for i in range(len(head) - 1)]
-    numeric = range(2, 8)
+    numeric = range(2, 9)
 
     def line(row: tuple[str, ...]) -> str:
         cells = [c.rjust(w) if i in numeric else c.ljust(w) for i, (c, w) in enumerate(zip(row, widths))]

@@ -86,5 +86,5 @@ def test_the_report_summary_says_it_too(tmp_path):
 @pytest.mark.parametrize("unused, circular", [(None, True), (N, False)], ids=["attitude fused", "attitude unused"])
 def test_the_batch_table_marks_a_circular_score_too(tmp_path, unused, circular):
     """The batch's error column said "2.08 vs EKF3" for a log whose EKF3 attitude the fuser had fused."""
-    error_deg, reference = batch._score(str(_log(tmp_path / "one10.mcap", unused)))
+    error_deg, reference, _ = batch._score(str(_log(tmp_path / "one10.mcap", unused)))
     assert error_deg is not None and reference == ("EKF3 (circular)" if circular else "EKF3")
