@@ -266,16 +266,17 @@ class FusionLoop:
     def _predicted_through(self, sample: Sample, placed_ns: int) -> bool:
         """Turn the output predictor through ``sample`` if it turns it (:meth:`_turns_prediction`); True if it is the
         reference IMU's and the prediction now ends there."""
-        if self._output is None or not self._turns_prediction(sample, self._output.slow):
+        if self._output is None or not self._turns_prediction(sample, self._output):
             return False
         ended = self._output.advance(sample.gyro_rad_s, placed_ns)  # False if the prediction has stopped
         return ended and sample.source == self.reference_imu
 
-    def _turns_prediction(self, sample: Sample, slow: bool) -> bool:
-        """The reference IMU's samples turn the output predictor, and in a ``slow`` gyro stream (a telemetry link's
-        IMUs at a few hertz each) the vehicle's other IMUs' too: the tick merges them into one stream, and between
-        the reference's samples they are the only rate there is (``fuser/model/output.py``)."""
-        return isinstance(sample, ImuSample) and (slow or sample.source == self.reference_imu)
+    def _turns_prediction(self, sample: Sample, output: OutputPredictor) -> bool:
+        """The reference IMU's samples turn the output predictor, and in a slow gyro stream (``output.slow``: a
+        telemetry link's IMUs at a few hertz each) the vehicle's other IMUs' too: the tick merges them into one
+        stream, and between the reference's samples they are the only rate there is (``fuser/model/output.py``).
+        ``slow`` is read last: a field of the compiled predictor's record, it costs more than the rest per sample."""
+        return isinstance(sample, ImuSample) and (sample.source == self.reference_imu or output.slow)
 
     def advance(self, now_ns: int) -> list[Estimate]:
         """Run every tick whose due time (tick + latency) is at or before ``now_ns``."""
@@ -316,8 +317,7 @@ class FusionLoop:
             # stamped when due, or just after the last prediction's stamp if a sample received after that went first
             stamp, published, spread_deg = max(tick_ns + self._wait_ns, self._last_stamp_ns + 1), result.published, None
             self.model.start_output(output)
-            slow = output.slow
-            output.advance_through([(sample.gyro_rad_s, placed) for placed, _, sample in self._pending if self._turns_prediction(sample, slow)])
+            output.advance_through([(sample.gyro_rad_s, placed) for placed, _, sample in self._pending if self._turns_prediction(sample, output)])
             if output.active:
                 published, spread_deg = output.at(stamp)
         else:  # the time it is for (fuser.model.extrapolation)

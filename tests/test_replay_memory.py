@@ -51,6 +51,18 @@ def test_stream_merges_a_log_out_of_order(tmp_path: Path) -> None:
     _same_as_read_log(tmp_path / "unordered.mcap")
 
 
+def test_stream_merges_a_log_in_order_but_for_a_few_steps_back(tmp_path: Path) -> None:
+    """Chunks in log-time order are let out as they are (fuser/record.py, :func:`LogStream.messages`), the others
+    through the merge: a log in order but for a message a little back in time now and then (in its own chunk or
+    the next one's span), and equal log times across chunk boundaries, read as read_log reads it."""
+    path = tmp_path / "steps.mcap"
+    with McapRecorder(path, chunk_size=2048, metadata={"source": "test"}) as rec:
+        for i in range(3000):
+            t = (i // 3) * 1_000_000 - (40_000_000 if i % 397 == 0 else 0)
+            rec.write_message("/input/imu" if i % 2 else "/truth/pose", t, t + 1, json.dumps({"i": i}).encode())
+    _same_as_read_log(path)
+
+
 def test_stream_reads_a_damaged_or_cut_log_as_read_log(tmp_path: Path) -> None:
     _unordered_log(tmp_path / "whole.mcap")
     data = bytearray((tmp_path / "whole.mcap").read_bytes())
