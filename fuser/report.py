@@ -183,8 +183,9 @@ def _score_lines(ref: Reference, rms: dict[str, float], since_s: float, coverage
         f"reported uncertainty {rms['uncertainty']:.2f}",
     ]
     if coverage:
+        meaning = f"honest: about {_regions()}" if ref.ground_truth else "another estimator's error is in it too: agreement, not calibration"
         lines.append(f"  {ref.name} inside the {_regions()} % credible regions: "
-                     f"{' / '.join(f'{100 * coverage[a]:.0f}' for a in REGIONS)} % of the time (honest: about {_regions()})")
+                     f"{' / '.join(f'{100 * coverage[a]:.0f}' for a in REGIONS)} % of the time ({meaning})")
     return lines
 
 

@@ -19,7 +19,7 @@ from drivers.samples import AttitudeSample, SourceId  # noqa: E402
 from fuser.config import load_config  # noqa: E402
 from fuser.record import McapRecorder, read_log  # noqa: E402
 from fuser.replay import replay  # noqa: E402
-from fuser.report import reference_of, write_report  # noqa: E402
+from fuser.report import reference_of, score_log, write_report  # noqa: E402
 
 LOGS = Path(__file__).resolve().parent.parent / "logs"
 PNGS = ("attitude.png", "error.png", "counters.png")
@@ -92,6 +92,7 @@ def _check_report(log: Path, out: Path, reference: str) -> str:
 
 def test_report_of_a_simulated_flight(tmp_path: Path) -> None:
     summary = _check_report(LOGS / "sim_hover.mcap", tmp_path, "simulator truth")
+    assert any(line.endswith("% of the time (honest: about 50 / 90 / 95)") for line in score_log(LOGS / "sim_hover.mcap"))
     assert "ground truth" in summary and "| ticks | 1200 |" in summary
 
 
@@ -100,6 +101,8 @@ def test_report_of_the_px4_log_names_ekf2(tmp_path: Path) -> None:
     replay(LOGS / "px4_sample_cut.mcap", fused, load_config(LOGS / "px4_sample_cut.toml"), progress=None)
     summary = _check_report(fused, tmp_path / "report", "EKF2")
     assert "not ground truth" in summary
+    assert any(line.startswith("  EKF2 inside the 50 / 90 / 95 % credible regions") and "agreement, not calibration" in line
+               for line in score_log(fused))  # the autopilot's own error is in it: no "honest" figures to compare with
     assert read_log(fused).metadata["bingham_fuser"]["attribution"].startswith("PX4 flight log")  # carried by replay
 
 
