@@ -387,7 +387,8 @@ def _read_files(args: argparse.Namespace) -> list[tuple[str, str]]:
 def _check_output(path: str, option: str, reads: Iterable[tuple[str, str]] = ()) -> None:
     """A file can be written at ``path``: not a folder nor a read-only file, in a folder that exists and is writable,
     and none of the files the command reads (``reads``, :func:`_read_files`): a replay or an import would replace its
-    own input (``replay flight.BIN -o flight.BIN`` left an MCAP where the DataFlash log had been). Checked before the
+    own input (``replay hover.mcap -o hover.mcap`` left its output where the log had been; a .BIN or a .tlog goes the
+    same way, by the same rename). Checked before the
     command starts, so it fails at once with one line (a recorder process would die on it)."""
     target = Path(path)
     if target.is_dir():

@@ -227,7 +227,7 @@ class StreamedScore:
 
 
 ESTIMATES_PER_BLOCK = 65_536
-"""Estimates :func:`stream_score` compares with the reference at a time (a few MB of arrays)."""
+"""Estimates :func:`stream_score` compares with the reference at a time (14 MB of arrays, Binghams included)."""
 
 
 class _SquareSums:
@@ -332,11 +332,7 @@ class _Estimates:
     def blocks(self, log: LogStream) -> Iterator[tuple[NDArray, ...]]:
         """The estimates with an IMU time, in log-time order, as (IMU times, quaternions, uncertainties, Bingham
         ``M``, ``Z``) arrays of at most :data:`ESTIMATES_PER_BLOCK`."""
-        t: list[int] = []
-        q: list[list[float]] = []
-        unc: list[float] = []
-        M: list[list[list[float]]] = []
-        Z: list[list[float]] = []
+        block = _Block(ESTIMATES_PER_BLOCK)
         for m in log.messages(["/estimate"]):
             d = loads(m.data)
             self.count += 1
@@ -344,20 +340,32 @@ class _Estimates:
             if d.get("sensor_t_ns") is None:
                 continue
             self.timed += 1
-            t.append(d["sensor_t_ns"])
-            q.append(d["q_wxyz"])
-            unc.append(float(d["uncertainty_deg"]))
-            M.append(d["M"])
-            Z.append(d["Z"])
-            if len(t) == ESTIMATES_PER_BLOCK:
-                yield _arrays(t, q, unc, M, Z)
-                t, q, unc, M, Z = [], [], [], [], []
-        if t:
-            yield _arrays(t, q, unc, M, Z)
+            if block.add(d):
+                yield block.arrays()
+                block = _Block(ESTIMATES_PER_BLOCK)
+        if block.n:
+            yield block.arrays()
 
 
-def _arrays(t: list[int], *values: list) -> tuple[NDArray, ...]:
-    return np.array(t, dtype=np.int64), *(np.array(v, dtype=float) for v in values)
+class _Block:
+    """Up to ``size`` estimates' fields in arrays, filled row by row: the JSON's lists are not kept (a block of
+    their Python floats took four times the arrays' memory)."""
+
+    def __init__(self, size: int) -> None:
+        self.n = 0
+        self.t = np.empty(size, dtype=np.int64)
+        self.q, self.unc, self.M, self.Z = np.empty((size, 4)), np.empty(size), np.empty((size, 4, 4)), np.empty((size, 4))
+
+    def add(self, d: dict) -> bool:
+        """Add one estimate's payload; True when the block is full."""
+        i = self.n
+        self.t[i], self.q[i], self.unc[i], self.M[i], self.Z[i] = d["sensor_t_ns"], d["q_wxyz"], d["uncertainty_deg"], d["M"], d["Z"]
+        self.n += 1
+        return self.n == self.t.size
+
+    def arrays(self) -> tuple[NDArray, ...]:
+        """(IMU times, quaternions, uncertainties, ``M``, ``Z``) of the estimates added."""
+        return tuple(a[: self.n] for a in (self.t, self.q, self.unc, self.M, self.Z))
 
 
 def _euler_deg(q: NDArray) -> NDArray:
