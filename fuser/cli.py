@@ -232,7 +232,9 @@ def _add_run(sub: Any) -> None:
                         "station does, repeated until they come (default: only listen; drivers/stream_request.py)")
     p.add_argument("--attitude-sigma", type=float, dest="attitude_sigma_deg", metavar="DEG", help="also fuse the autopilot's attitude with this noise")
     p.add_argument("--duration", type=_seconds, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs and estimates (in a separate process)")
+    p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs and estimates (in a separate process); "
+                   "an existing file is kept unless --overwrite is given")
+    p.add_argument("--overwrite", action="store_true", help="let --record replace an existing file")
 
 
 def _add_replay(sub: Any) -> None:
@@ -359,6 +361,8 @@ def _check_run(args: argparse.Namespace) -> None:
         _warn(f"--request-rate {args.request_rate_hz:g} is ignored: it asks MAVLink vehicles, and no --mavlink is given")
     if args.bitrate is not None and all(spec.partition(":")[0] in CAN_WITHOUT_BITRATE for spec in args.can):
         _warn(f"--bitrate {args.bitrate} is ignored: {', '.join(CAN_WITHOUT_BITRATE)} buses take none")
+    if args.overwrite and not args.record:
+        _warn("--overwrite is ignored: it applies to --record, and none is given")
 
 
 def _check_listen(args: argparse.Namespace) -> None:
@@ -403,6 +407,17 @@ def _check_output(path: str, option: str, reads: Iterable[tuple[str, str]] = ())
         raise UsageError(f"cannot write {option} {path}: the folder {folder} does not exist")
     if not os.access(folder, os.W_OK):
         raise UsageError(f"cannot write {option} {path}: the folder {folder} is not writable")
+
+
+def _check_not_a_recording(path: str, overwrite: bool) -> None:
+    """``run --record`` onto an existing file: refused without ``--overwrite``. A live flight's recording cannot be
+    made again (a replay's or an import's output can, from its input), and the recorder truncates the file as it
+    opens it: the same command run twice, as one does flight after flight, would lose the first."""
+    target = Path(path)
+    if target.is_file() and not overwrite:
+        size = target.stat().st_size
+        raise UsageError(f"cannot write --record {path}: the file exists ({size:,} bytes, an earlier recording?); name "
+                         "another file, or add --overwrite to replace it")
 
 
 def _check_output_folder(path: str, option: str) -> None:
@@ -628,6 +643,7 @@ def _cmd_run(args: argparse.Namespace, config: FuserConfig) -> int:
     _check_signing_key(config)
     if args.record:
         _check_output(args.record, "--record", _read_files(args))
+        _check_not_a_recording(args.record, args.overwrite)
     from drivers.sources import DroneCanSource, MavlinkSource
     from fuser.inputs import silence_hint, source_report
     from fuser.live import LiveRunner

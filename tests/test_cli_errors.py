@@ -87,6 +87,11 @@ CASES: dict[str, Case] = {
                                             ("settings file", "flight.toml: it is the --output file"), {"flight.bin": RANDOM}),
     "record-onto-its-config": Case(["run", "--mavlink", f"udpin:127.0.0.1:{CLOSED_PORT}", "--no-zenoh", "--duration", "1", "--record", "c.toml",
                                     "--config", "c.toml"], 2, ("--config file c.toml",), {"c.toml": _text("[fuser]\nrate_hz = 100.0\n")}),
+    # a live flight's recording is not replaced by the next run's unless asked (a replay's output can be made again)
+    "record-onto-an-earlier-recording": Case(["run", "--mavlink", f"udpin:127.0.0.1:{CLOSED_PORT}", "--no-zenoh", "--duration", "1",
+                                              "--record", "flight.mcap"], 2,
+                                             ("cannot write --record flight.mcap: the file exists", "add --overwrite"),
+                                             {"flight.mcap": LOG.read_bytes()}),
     # configuration
     "config-wrong-type": Case(["replay", str(LOG), "-o", "out.mcap", "--config", "c.toml"], 2, ("fuser.rate_hz", "fast"),
                               {"c.toml": _text(BAD_FUSER + 'rate_hz = "fast"\n')}),
@@ -329,6 +334,7 @@ def test_an_import_start_is_a_finite_number_of_seconds_from_zero(value: str, cap
     (["run", "--mavlink", "udpin:0.0.0.0:14550", "--baud", "115200"], "--baud 115200 is ignored"),
     (["run", "--can", "virtual:x", "--bitrate", "500000"], "--bitrate 500000 is ignored"),
     (["run", "--can", "virtual:x", "--request-rate", "50"], "--request-rate 50 is ignored: it asks MAVLink vehicles"),
+    (["run", "--can", "virtual:x", "--overwrite"], "--overwrite is ignored: it applies to --record"),
     (["listen", "--zenoh-connect", "tcp/127.0.0.1:7447", "--zenoh-listen", "tcp/127.0.0.1:7448"], "--zenoh-connect overrides --zenoh-listen"),
 ])
 def test_an_option_overridden_by_another_is_warned_about(argv: list[str], warning: str, capsys: pytest.CaptureFixture) -> None:
@@ -351,3 +357,16 @@ def test_an_output_that_is_the_input_under_another_name_is_refused(link: str, tm
     assert main(["replay", str(log), "-o", str(other)]) == 2
     assert f"it is the input log {log}" in capsys.readouterr().err
     assert log.read_bytes() == LOG.read_bytes()
+
+
+def test_overwrite_lets_run_replace_an_earlier_recording(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from fuser.cli import main
+    from fuser.record import read_log
+
+    flight = tmp_path / "flight.mcap"
+    flight.write_bytes(LOG.read_bytes())
+    argv = ["run", "--mavlink", f"udpin:127.0.0.1:{free_port(socket.SOCK_DGRAM)}", "--no-zenoh", "--duration", "0.5",
+            "--record", str(flight)]
+    assert main(argv) == 2 and flight.read_bytes() == LOG.read_bytes()
+    assert main([*argv, "--overwrite"]) == 0
+    assert read_log(flight).metadata["bingham_fuser"]["source"] == "bingham-fuser run"  # this run's, no longer the sim's
