@@ -463,6 +463,10 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
     ax[1].fill_between(t, 0, err.uncertainty_deg, color="tab:green", alpha=0.3, lw=0,
                        label=f"reported RMS uncertainty (RMS {rms['uncertainty']:.2f}°)")
     ax[1].plot(t, err.total_deg, lw=0.8, color="tab:blue", label=f"actual total error (RMS {rms['total']:.2f}°)")
+    if err.level is not None:  # where the reported uncertainty was overconfident: the reference outside the 90 % region
+        outside = err.level > 0.9
+        ax[1].plot(t[outside], err.total_deg[outside], ls="none", marker=".", ms=2.5, color="tab:red",
+                   label=f"{ref.name} outside the 90 % credible region ({100 * np.mean(outside):.0f} % of the estimates plotted)")
     ax[1].set_ylabel("deg")
     ax[1].set_xlabel("time [s]")
     ax[1].legend(loc="upper right", fontsize=8)
