@@ -79,6 +79,8 @@ NOT_A_VEHICLE = (
     "SERVO", "ODID", "BATTERY", "PARACHUTE", "LOG", "OSD", "IMU", "GPS", "WINCH", "ILLUMINATOR", "GRIPPER",
 )
 """MAV_TYPE names of peripherals and ground stations: their HEARTBEATs never choose the vehicle."""
+MAX_OTHER_VEHICLES = 16
+"""Other vehicles named in :attr:`MavlinkDecoder.other_vehicles` at most (HEARTBEATs from any ids cost no more)."""
 
 
 def dialect_module(dialect: str) -> Any:
@@ -120,6 +122,9 @@ class MavlinkDecoder(Decoder):
         """Component id data is taken from (None: any, or not chosen yet)."""
         self.autopilot: int | None = None
         """MAV_AUTOPILOT of the vehicle's last HEARTBEAT (None before one, or with every sender used)."""
+        self.other_vehicles: set[tuple[int, int]] = set()
+        """(system, component) of the other vehicles whose autopilot HEARTBEAT was heard once the vehicle was chosen
+        (their data counted ``other_sender``), at most :data:`MAX_OTHER_VEHICLES`."""
         self._awaiting_autopilot = self.link.system is None and self.link.lock_first_autopilot
         self._heartbeat = mod.MAVLink_heartbeat_message
         self._not_a_vehicle = frozenset(getattr(mod, f"MAV_TYPE_{name}") for name in NOT_A_VEHICLE if hasattr(mod, f"MAV_TYPE_{name}"))
@@ -192,6 +197,8 @@ class MavlinkDecoder(Decoder):
             system, component = header.srcSystem, header.srcComponent
             if (self.system is not None and system != self.system) or (self.component is not None and component != self.component):
                 stats["other_sender"] += 1
+                if kind is self._heartbeat and len(self.other_vehicles) < MAX_OTHER_VEHICLES and self._is_vehicle(msg):
+                    self.other_vehicles.add((system, component))
                 continue
             handler = handlers.get(kind)
             try:
@@ -214,14 +221,13 @@ class MavlinkDecoder(Decoder):
             samples.append(sample)
         return samples
 
-    def _is_autopilot(self, hb: Any) -> bool:
+    def _is_vehicle(self, hb: Any) -> bool:
         """pymavlink's ``probably_vehicle_heartbeat``, with every peripheral MAV_TYPE excluded."""
-        return (
-            hb.autopilot != self._invalid_autopilot
-            and hb.type not in self._not_a_vehicle
-            and hb.get_srcComponent() != self._gimbal_component
-            and (self.component is None or hb.get_srcComponent() == self.component)
-        )
+        return hb.autopilot != self._invalid_autopilot and hb.type not in self._not_a_vehicle and hb.get_srcComponent() != self._gimbal_component
+
+    def _is_autopilot(self, hb: Any) -> bool:
+        """:meth:`_is_vehicle`, from the component asked for if one was."""
+        return self._is_vehicle(hb) and (self.component is None or hb.get_srcComponent() == self.component)
 
     def _lock(self, hb: Any) -> None:
         self._awaiting_autopilot = False

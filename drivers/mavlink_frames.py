@@ -15,7 +15,8 @@ back as ``MAVLink_bad_data``); this module decides what each refusal is and what
   decoded: another sender's frame that the next frame's start follows (or the end of the bytes)
   is counted as ``other_sender``, and any other such header is a stray magic byte in garbage,
   stepped over one byte at a time, so it can swallow nothing. A flood from other senders, or of
-  random bytes, costs a header read per frame or false header;
+  random bytes, costs a header read per frame or false header. Other senders' HEARTBEATs (one a
+  second each) are decoded, so that another vehicle on the link can be named;
 * a datagram or a log record is complete in itself: what is left at its end is a frame cut
   short (``truncated``), and the bytes after its first are searched for frames too.
 
@@ -46,6 +47,7 @@ _SIGNING_UNITS_PER_S = 100_000
 _SIGNATURE_BYTES = 6
 _MAGIC = (0xFE, 0xFD)
 _V2 = 0xFD
+_HEARTBEAT_ID = 0
 
 
 def signing_timestamp_now() -> int:
@@ -147,11 +149,11 @@ class FrameParser:
                 break
             if buf[i] == _V2:
                 end, system, component = i + 12 + buf[i + 1] + (13 if buf[i + 2] & 0x01 else 0), buf[i + 5], buf[i + 6]
-                valid_flags = not buf[i + 2] & 0xFE
+                valid_flags, msgid = not buf[i + 2] & 0xFE, buf[i + 7] | buf[i + 8] << 8 | buf[i + 9] << 16
             else:
-                end, system, component, valid_flags = i + 8 + buf[i + 1], buf[i + 3], buf[i + 4], True
-            if valid_flags and screen(system, component):
-                break  # the vehicle's, or claims to be: pymavlink checks it
+                end, system, component, valid_flags, msgid = i + 8 + buf[i + 1], buf[i + 3], buf[i + 4], True, buf[i + 5]
+            if valid_flags and (screen(system, component) or msgid == _HEARTBEAT_ID):
+                break  # the vehicle's, or claims to be, or anyone's HEARTBEAT: pymavlink checks it
             if valid_flags and end > n:
                 break  # another sender's frame, not complete yet
             if valid_flags and (end == n or buf[end] in _MAGIC):

@@ -50,6 +50,8 @@ class InputReport:
     imu_decodable: int
     imu_used: int
     stats: Mapping[str, int]
+    other_vehicles: tuple[tuple[int, int], ...] = ()
+    """(system, component) of other vehicles heard on the link, whose data was left out (``other_sender``)."""
 
     @property
     def refused(self) -> dict[str, int]:
@@ -63,7 +65,12 @@ class InputReport:
         counted = [f"{k}={self.stats[k]:,}" for k in NOT_REFUSALS if k not in ("accepted", "ignored") and self.stats.get(k)]
         used += f"; also counted: {', '.join(counted)}" if counted else ""
         refused = ", ".join(f"{k}={v:,}" for k, v in self.refused.items())
-        return [used, f"{self.name}: not used: {refused or 'nothing'}"]
+        lines = [used, f"{self.name}: not used: {refused or 'nothing'}"]
+        if self.other_vehicles:
+            heard = ", ".join(f"system {s} component {c}" for s, c in self.other_vehicles)
+            lines.append(f"{self.name}: other vehicles on this link: {heard}; only the first autopilot heard is fused, the "
+                         "others' data is other_sender: fuse another with --system N (and --component C)")
+        return lines
 
     def warning(self) -> str | None:
         """A warning when less than 90% of the decodable IMU messages reached the loop."""
@@ -108,7 +115,8 @@ class TlogInputs:
         return feed
 
     def report(self) -> InputReport:
-        return InputReport(self.name, _imu_decodable(self.source.decoder), self.imu_used, dict(self.stats))
+        decoder = self.source.decoder
+        return InputReport(self.name, _imu_decodable(decoder), self.imu_used, dict(self.stats), _other_vehicles(decoder))
 
     @property
     def stats(self) -> Counter[str]:
@@ -142,7 +150,12 @@ def source_report(name: str, source: Any) -> InputReport:
     """The decoder's view of a live source (IMU samples accepted, not what the loop took): its IMU messages (DroneCAN
     RawIMU transfers) decoded and used; under 90 % used, the report warns (it said "0 of 0" for a CAN bus)."""
     decoder = source.decoder
-    return InputReport(name, _imu_decodable(decoder), decoder.imu_used, dict(source.stats))
+    return InputReport(name, _imu_decodable(decoder), decoder.imu_used, dict(source.stats), _other_vehicles(decoder))
+
+
+def _other_vehicles(decoder: MavlinkDecoder | Any) -> tuple[tuple[int, int], ...]:
+    """The other vehicles a MAVLink decoder heard, in order (a DroneCAN bus names none)."""
+    return tuple(sorted(getattr(decoder, "other_vehicles", ())))
 
 
 def sim_ticks(flight: Flight, transport: str = "mavlink") -> Iterator[tuple[int, object, list[Sample]]]:

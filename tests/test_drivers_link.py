@@ -70,6 +70,37 @@ def test_locks_onto_the_first_autopilot_heartbeat_and_counts_everyone_else():
     assert decoder.stats["no_vehicle_yet"] == 4 and decoder.stats["other_sender"] == 3
 
 
+@pytest.mark.parametrize("v1", [False, True], ids=["mavlink2", "mavlink1"])
+def test_other_vehicles_heard_after_the_lock_are_named_and_not_fused(v1: bool):
+    """Their frames are screened out undecoded (other_sender), but for their HEARTBEATs: a second autopilot is named,
+    a ground station, a companion computer and a gimbal are not; their data is never mixed in."""
+    second_vehicle = apm1.MAVLink_heartbeat_message(1, 12, 0, 0, 4, 3) if v1 else heartbeat(1, 12)  # PX4 fixed wing
+    packed = (lambda msg, **ids: bytes(msg.pack(apm1.MAVLink(None, srcSystem=ids["system"], srcComponent=ids["component"])))) \
+        if v1 else (lambda msg, **ids: frame(msg, **ids))
+    decoder = MavlinkDecoder(LinkSettings())
+    assert decoder.feed(frame(heartbeat(2, 3), system=3, component=1)) == []  # the vehicle: from now on others are screened
+    stream = (
+        frame(heartbeat(6, 8), system=255, component=190)  # a ground station
+        + frame(heartbeat(18, 3), system=3, component=191)  # a companion computer
+        + frame(heartbeat(26, 3), system=3, component=154)  # a gimbal
+        + packed(second_vehicle, system=4, component=1)
+        + frame(imu(2_500), system=4, component=1)
+        + frame(imu(3_000), system=3, component=1, seq=1)
+    )
+    assert times(decoder.feed(stream)) == [3_000]
+    assert decoder.other_vehicles == {(4, 1)}
+    assert decoder.stats["other_sender"] == 5
+
+
+def test_other_vehicles_named_are_capped():
+    from drivers.mavlink_decode import MAX_OTHER_VEHICLES
+
+    decoder = MavlinkDecoder(LinkSettings())
+    decoder.feed(frame(heartbeat(), system=1))
+    decoder.feed(b"".join(frame(heartbeat(), system=2 + k) for k in range(100)))
+    assert len(decoder.other_vehicles) == MAX_OTHER_VEHICLES and decoder.stats["other_sender"] == 100
+
+
 def test_a_component_given_waits_for_that_components_autopilot_heartbeat():
     decoder = MavlinkDecoder(LinkSettings(component=2))
     stream = frame(heartbeat(), system=1, component=1) + frame(heartbeat(), system=1, component=2) + frame(imu(5), system=1, component=2)

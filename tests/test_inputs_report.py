@@ -84,3 +84,22 @@ def test_mavlink_heartbeats_are_not_refusals():
     assert decoder.stats["ignored"] >= 3  # the heartbeats
     assert report.lines()[0].startswith("mavlink:udpin:0.0.0.0:14550: 300 of 300 IMU messages used (100.0%)")
     assert report.refused == {}
+
+
+def test_a_link_with_another_vehicle_names_it_and_says_how_to_fuse_it():
+    """Two vehicles streaming into one port: ``run`` said only ``other_sender=828``. The decoder names the other
+    autopilot from its HEARTBEAT (tests/test_drivers_link.py), and the report says which and what to do."""
+    from pymavlink.dialects.v20 import ardupilotmega as apm
+
+    from drivers.link import LinkSettings
+
+    def heartbeat(system: int) -> bytes:
+        return bytes(apm.MAVLink_heartbeat_message(2, 3, 0, 0, 4, 3).pack(apm.MAVLink(None, srcSystem=system, srcComponent=1)))
+
+    decoder = MavlinkDecoder(LinkSettings())
+    decoder.feed(heartbeat(1))
+    decoder.feed(heartbeat(7) + heartbeat(2))
+    lines = source_report("udp", SimpleNamespace(decoder=decoder, stats=decoder.stats)).lines()
+    assert lines[2] == ("udp: other vehicles on this link: system 2 component 1, system 7 component 1; only the first autopilot "
+                        "heard is fused, the others' data is other_sender: fuse another with --system N (and --component C)")
+    assert len(InputReport("x", 1, 1, {"accepted": 1}).lines()) == 2  # one vehicle: no such line
