@@ -68,8 +68,8 @@ class InputReport:
         lines = [used, f"{self.name}: not used: {refused or 'nothing'}"]
         if self.other_vehicles:
             heard = ", ".join(f"system {s} component {c}" for s, c in self.other_vehicles)
-            lines.append(f"{self.name}: other vehicles on this link: {heard}; only the first autopilot heard is fused, the "
-                         "others' data is other_sender: fuse another with --system N (and --component C)")
+            lines.append(f"{self.name}: other vehicles on this link: {heard}; their data is left out (other_sender): one vehicle "
+                         "is fused, the first autopilot heard unless --system N (and --component C) names another")
         return lines
 
     def warning(self) -> str | None:

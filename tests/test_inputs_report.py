@@ -100,6 +100,7 @@ def test_a_link_with_another_vehicle_names_it_and_says_how_to_fuse_it():
     decoder.feed(heartbeat(1))
     decoder.feed(heartbeat(7) + heartbeat(2))
     lines = source_report("udp", SimpleNamespace(decoder=decoder, stats=decoder.stats)).lines()
-    assert lines[2] == ("udp: other vehicles on this link: system 2 component 1, system 7 component 1; only the first autopilot "
-                        "heard is fused, the others' data is other_sender: fuse another with --system N (and --component C)")
+    assert lines[2] == ("udp: other vehicles on this link: system 2 component 1, system 7 component 1; their data is left out "
+                        "(other_sender): one vehicle is fused, the first autopilot heard unless --system N (and --component C) "
+                        "names another")
     assert len(InputReport("x", 1, 1, {"accepted": 1}).lines()) == 2  # one vehicle: no such line
