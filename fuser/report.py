@@ -183,8 +183,9 @@ def _score_lines(ref: Reference, rms: dict[str, float], since_s: float, coverage
         f"reported uncertainty {rms['uncertainty']:.2f}",
     ]
     if coverage:
-        meaning = f"honest: about {_regions()}" if ref.ground_truth else "another estimator's error is in it too: agreement, not calibration"
-        lines.append(f"  {ref.name} inside the {_regions()} % credible regions: "
+        regions = _regions()
+        meaning = f"honest: about {regions}" if ref.ground_truth else "another estimator's error is in it too: agreement, not calibration"
+        lines.append(f"  {ref.name} inside the {regions} % credible regions: "
                      f"{' / '.join(f'{100 * coverage[a]:.0f}' for a in REGIONS)} % of the time ({meaning})")
     return lines
 
@@ -499,19 +500,20 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
     plt.close(fig)
 
     circular = _circular(contents, ref)
-    lines = _score_lines(ref, rms, since_s, err.coverage(since_s)) + ([circular] if circular else [])
-    (out_dir / "summary.md").write_text(_summary(Path(path).name, ref, err, rms, since_s, final)
+    coverage = err.coverage(since_s)
+    lines = _score_lines(ref, rms, since_s, coverage) + ([circular] if circular else [])
+    (out_dir / "summary.md").write_text(_summary(Path(path).name, ref, err, rms, coverage, since_s, final)
                                         + (f"\n**Note:** {circular.removeprefix('note: ')}.\n" if circular else ""))
     return lines + [f"report: {out_dir / 'summary.md'}, attitude.png, error.png, counters.png"]
 
 
-def _summary(log_name: str, ref: Reference, err: AttitudeErrors, rms: dict[str, float], since_s: float,
-             counters: dict[str, int]) -> str:
+def _summary(log_name: str, ref: Reference, err: AttitudeErrors, rms: dict[str, float], coverage: dict[float, float],
+             since_s: float, counters: dict[str, int]) -> str:
     window = f"after the first {since_s:g} s (convergence left out)" if since_s > 0 else "over the whole flight (too short to leave out the convergence)"
     kind = "ground truth" if ref.ground_truth else "another estimator, not ground truth: the figures are agreement, not accuracy"
     duration = (err.t_ns[-1] - err.t_ns[0]) * 1e-9
     rows = "\n".join(f"| {name} | {rms[name]:.2f} |" for name in ("total", "tilt", "heading", "uncertainty"))
-    inside = "\n".join(f"| {100 * a:g} % | {100 * f:.1f} % |" for a, f in err.coverage(since_s).items())
+    inside = "\n".join(f"| {100 * a:g} % | {100 * f:.1f} % |" for a, f in coverage.items())
     counts = "\n".join(f"| {k} | {v} |" for k, v in counters.items())
     return f"""# bingham-fuser report: {log_name}
 
