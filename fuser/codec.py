@@ -174,7 +174,7 @@ class Estimate:
     filter. ``diagnostics`` says what each measurement update did in
     the tick (:class:`fuser.model.diagnostics.UpdateDiagnostic` as dicts); it
     is not part of the estimate's payload but recorded beside it on
-    ``/diagnostics`` (:meth:`diagnostics_json`).
+    ``/diagnostics`` (:meth:`diagnostics_dict`).
     """
 
     t_ns: int
@@ -205,9 +205,9 @@ class Estimate:
         """The estimate as published and recorded (``dumps`` of :meth:`to_dict`)."""
         return dumps(self.to_dict())
 
-    def diagnostics_json(self) -> bytes:
+    def diagnostics_dict(self) -> dict[str, Any]:
         """The tick's update diagnostics as recorded on ``/diagnostics``: ``{"t_ns", "updates": [...]}``."""
-        return dumps({"t_ns": self.t_ns, "updates": list(self.diagnostics)})
+        return {"t_ns": self.t_ns, "updates": list(self.diagnostics)}
 
     @classmethod
     def from_dict(cls, d: Any) -> Estimate:

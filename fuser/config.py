@@ -154,7 +154,19 @@ class Settings:
         """Rules between fields (override)."""
 
 
-Seconds = Annotated[float, Range(gt=0, unit="s")]
+Seconds = Annotated[float, Range(ge=1e-3, le=86_400, unit="s")]
+"""A time constant or duration: from a millisecond (a tick of the fastest loop, :data:`MAX_RATE_HZ`) to a day (longer
+than any flight: "never" for a flight), so that every rate, exponential and nanosecond count made of it stays finite."""
+Sigma = Annotated[float, Range(ge=1e-3, le=180, unit="deg")]
+"""A one-sigma angle: from a thousandth of a degree (finer than any attitude sensor; below it the squared
+concentrations overflow) to 180 deg (beyond it an angle says nothing: a uniform attitude)."""
+GateSigmas = Annotated[float, Range(ge=1)]
+"""An innovation gate in sigmas: below one it would refuse a third of the readings of a sensor as good as configured."""
+MAX_RATE_HZ = 2000.0
+"""The fastest loop: twice the fastest IMU stream a MAVLink link or a DroneCAN bus carries (1 kHz); a faster loop
+gains nothing and its tick history (:func:`fuser.model.state.knot_capacity`) grows with the rate."""
+MAX_WAIT_MS = 10_000.0
+"""The longest a tick may wait for samples in flight: beyond it an estimate is too late for any consumer."""
 
 
 @dataclass(frozen=True)
@@ -163,11 +175,11 @@ class GyroSettings(Settings):
 
     section: ClassVar[str] = "fuser.gyro"
 
-    noise_rad_s_rt_hz: Annotated[float, Range(ge=0, unit="rad/s/sqrt(Hz)")] = 3e-4
+    noise_rad_s_rt_hz: Annotated[float, Range(ge=0, le=1, unit="rad/s/sqrt(Hz)")] = 3e-4
     """White-noise density of the rate."""
     scale_error_fraction: Annotated[float, Range(ge=0, lt=1)] = 0.01
     """Relative scale and misalignment error: process noise proportional to the rotation rate."""
-    gap_rate_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 1.0
+    gap_rate_rad_s: Annotated[float, Range(ge=0, le=100, unit="rad/s")] = 1.0
     """Assumed rotation rate while no gyro data arrives: how fast the uncertainty grows in a gap."""
     max_interval_s: Seconds = 0.6
     """Longest interval between two gyro samples that is integrated, and the longest the last rate is held
@@ -181,7 +193,7 @@ class GyroSettings(Settings):
     enough that the rate's path between two samples is the one they show (an IMU's filters and the vehicle's
     inertia leave no turn unseen at 50 Hz, jitter and all, or faster); a slower one counts the rate walk its samples
     show when it exceeds ``rate_walk_rad_s_rt_s`` (:mod:`fuser.model.propagation`)."""
-    rate_walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 0.3
+    rate_walk_rad_s_rt_s: Annotated[float, Range(ge=0, le=100, unit="rad/s/sqrt(s)")] = 0.3
     """How fast the true rate may depart from the last sample (a random walk of the rate): the error of the
     rate between samples, ``s^2 h^3 / 12`` interpolated over an interval ``h``, ``s^2 h^3 / 3`` held for ``h``."""
     min_process_variance_rad2: Annotated[float, Range(gt=0, unit="rad^2")] = 1e-18
@@ -214,14 +226,14 @@ class ImuCheckSettings(Settings):
     roughness_s: Seconds = 0.5
     """Time constant of each IMU's roughness (its squared sample-to-sample change of rate, low-passed): of two
     IMUs that disagree, the rougher is the one kept out."""
-    frozen_samples: Annotated[int, Range(gt=1)] = 50
+    frozen_samples: Annotated[int, Range(gt=1, le=1_000_000)] = 50
     """A gyro axis that repeats its value exactly this many samples in a row, while another IMU of the vehicle's
     same axis does not, is frozen: that IMU is kept out until it moves again. A working MEMS gyro's noise moves
     its reading by a least step or more most samples: quantised to 1 mrad/s (MAVLink SCALED_IMU) at rest, where a
     repeat may be as likely as 0.6, 50 repeats happen once in 10^11 samples. PX4's sensor voting flags a sensor
     whose data stays unchanged for 100 samples as stale (``DataValidator``); at 200 Hz 50 is 0.25 s of a stuck
     axis averaged in."""
-    fault_sigma_deg: Annotated[float, Range(ge=0, unit="deg")] = 3.0
+    fault_sigma_deg: Annotated[float, Range(ge=0, le=180, unit="deg")] = 3.0
     """While an IMU is kept out (and ``compare_within_s`` after), the estimate rests on fewer IMUs than the
     vehicle has: the published one is widened by this much, per axis."""
 
@@ -234,13 +246,13 @@ class BiasSettings(Settings):
 
     section: ClassVar[str] = "fuser.bias"
 
-    initial_sigma_rad_s: Annotated[float, Range(gt=0, unit="rad/s")] = 0.015
+    initial_sigma_rad_s: Annotated[float, Range(gt=0, le=1, unit="rad/s")] = 0.015
     """Uncertainty of the bias before it has been learnt (one sigma, per axis); also its ceiling."""
-    floor_sigma_rad_s: Annotated[float, Range(ge=0, unit="rad/s")] = 0.003
+    floor_sigma_rad_s: Annotated[float, Range(ge=0, le=1, unit="rad/s")] = 0.003
     """The least uncertainty learning in motion brings the estimate to (one sigma, per axis): the corrections also
     carry the slowly varying errors of what they follow, which their noise model counts as white; a bias measured
     better at rest keeps its own."""
-    walk_rad_s_rt_s: Annotated[float, Range(ge=0, unit="rad/s/sqrt(s)")] = 1e-4
+    walk_rad_s_rt_s: Annotated[float, Range(ge=0, le=1, unit="rad/s/sqrt(s)")] = 1e-4
     """Random walk of the bias (temperature, instability): a bias learnt at rest is not trusted for ever."""
     feedback_enabled: bool = True
     """Learn the bias in motion: from the plain tilt and the heading corrections (VQF's motion bias estimation), by
@@ -294,15 +306,15 @@ class AccelSettings(Settings):
 
     section: ClassVar[str] = "fuser.accel"
 
-    sigma_rad: Annotated[float, Range(gt=0, unit="rad")] = 0.1
+    sigma_rad: Annotated[float, Range(ge=1e-5, le=math.pi, unit="rad")] = 0.1
     """Direction noise of a raw reading, used until the state has first converged (a fast start)."""
     lowpass_s: Seconds = 3.0
     """Longest time constant of the low-pass in the gyro-predicted inertial frame, which is also the tilt
     correction's once converged (VQF's tauAcc); reached once the bias is known (``tilt_bias_error_deg``)."""
-    tilt_bias_error_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
+    tilt_bias_error_deg: Sigma = 0.5
     """Tilt error a residual bias may build up within one correction time constant: the time constant is
     ``tilt_bias_error / bias sigma``, capped at ``lowpass_s`` (fast while the bias is unknown)."""
-    lowpass_error_deg: Annotated[float, Range(gt=0, unit="deg")] = 0.5
+    lowpass_error_deg: Sigma = 0.5
     """Error of the low-passed down the plain tilt correction follows (the linear acceleration its low-pass leaves),
     correlated over the tilt time constant: the sigma its innovation gate allows once converged (with the state's
     doubt), and the noise of the tilt correction as a measurement of the bias (:mod:`fuser.model.bias`; this was
@@ -353,16 +365,16 @@ class MagSettings(Settings):
     ``wmm_undated_decimal_year`` (a simulated flight on its own clock, ``sim --speed 0``)."""
     wmm_undated_decimal_year: Annotated[float, Range(ge=2010, lt=2030, unit="year")] = 2026.5
     """The WMM's date when no time in the input is a Unix time (the declination moves about 0.1 deg a year)."""
-    sigma_rad: Annotated[float, Range(gt=0, unit="rad")] = 0.3
+    sigma_rad: Annotated[float, Range(ge=1e-5, le=math.pi, unit="rad")] = 0.3
     """Heading noise per tick until the state has converged, and the least sigma the innovation gate assumes."""
-    error_deg: Annotated[float, Range(gt=0, unit="deg")] = 2.0
+    error_deg: Sigma = 2.0
     """Heading error of the magnetometer once converged (one sigma): local distortion along the path, tilt
     error through the dip. Correlated over ``correlation_s``, so the per-tick sigma is
     ``error sqrt(correlation_s / dt)``: counted once per correlation time. Measured on BROAD 16: the
     magnetometer's heading sits 1-3 deg off the truth for 10-30 s at a time."""
     correlation_s: Seconds = 10.0
     """Correlation time of the heading error (see ``error_deg``)."""
-    heading_bias_error_deg: Annotated[float, Range(gt=0, unit="deg")] = 1.5
+    heading_bias_error_deg: Sigma = 1.5
     """Heading error a residual gyro bias may build up within one heading-correction time constant, as
     ``accel.tilt_bias_error_deg`` for the tilt: an unlearnt bias cannot drag the heading away."""
     norm_gate_fraction: Annotated[float, Range(gt=0)] = 0.1
@@ -395,7 +407,7 @@ class AttitudeSettings(Settings):
     ``auto_below_imu_hz``, or no IMU at all: a telemetry radio), not while it is fast (a wired link, where
     the autopilot's estimate would only pull ours towards its own); ``"always"``: fuse every attitude sample;
     ``"off"``: never."""
-    sigma_deg: Annotated[float, Range(gt=0, unit="deg")] = 2.0
+    sigma_deg: Sigma = 2.0
     """One-sigma noise of the autopilot's attitude, per axis: an EKF's attitude error in flight is 1-2 deg."""
     auto_below_imu_hz: Annotated[float, Range(gt=0, unit="Hz")] = 20.0
     """``"auto"`` fuses the attitude while the measured IMU rate (all the vehicle's IMUs together) is below this."""
@@ -412,7 +424,7 @@ class UpdateSettings(Settings):
 
     section: ClassVar[str] = "fuser.updates"
 
-    innovation_gate_sigma: Annotated[float, Range(gt=0)] = 3.0
+    innovation_gate_sigma: GateSigmas = 3.0
     """Gate a gravity or heading reading further than this many sigma (sensor and state) from the prediction."""
     reanchor_after_s: Seconds = 0.5
     """After this long of continuous gating a reading is fused again, so that a wrong state can recover."""
@@ -441,12 +453,12 @@ class ModelErrorSettings(Settings):
 
     section: ClassVar[str] = "fuser.model_error"
 
-    tilt_deg: Annotated[float, Range(ge=0, unit="deg")] = 0.0
+    tilt_deg: Annotated[float, Range(ge=0, le=180, unit="deg")] = 0.0
     """Floor of the tilt error (accelerometer bias and misalignment), one sigma per axis."""
-    heading_deg: Annotated[float, Range(ge=0, unit="deg")] = 2.5
+    heading_deg: Annotated[float, Range(ge=0, le=180, unit="deg")] = 2.5
     """Floor of the heading error (local field distortion, an offset the motion never reveals); only with a
     magnetometer. Set mostly by BROAD trial 27, whose heading sits a steady 4.5-7 deg off; 0.5 without it."""
-    rate_s: Annotated[float, Range(ge=0, unit="s")] = 0.0
+    rate_s: Annotated[float, Range(ge=0, le=1, unit="s")] = 0.0
     """Attitude error (rad, every axis) per rad/s of the recent RMS rotation rate: time-stamp and
     synchronisation errors (``rate dt``) and scale errors left over the correction time (``s rate T``)."""
 
@@ -462,7 +474,7 @@ class ExtrapolationSettings(Settings):
     gets the attitude of the moment it receives it; ``"hold_midpoint"``: half a tick period further, the middle
     of the interval a consumer holds it; ``"tick"``: not carried (the attitude at the tick). The estimate is
     stamped with the time it is for."""
-    imu_delay_ms: Annotated[float, Range(ge=0, unit="ms")] = 3.5
+    imu_delay_ms: Annotated[float, Range(ge=0, le=1000, unit="ms")] = 3.5
     """How long before its stamp the motion an IMU sample describes happened: the IMU's filter group delay, plus
     half the interval for a rate averaged over the interval since the previous sample. The published state is
     carried this much further (the filter's state, like the samples, is that far behind its tick)."""
@@ -501,13 +513,13 @@ class GnssSettings(Settings):
     """Two fixes further apart than this are not differenced (the acceleration between them is too smeared),
     and the aiding stops once the latest fix is this old (the gravity update falls back to the
     accelerometer alone)."""
-    noise_window_s: Annotated[float, Range(gt=0, unit="s")] = 10.0
+    noise_window_s: Seconds = 10.0
     """The velocity noise a receiver delivers is measured over about this long (:mod:`fuser.model.velocity`,
     "Noise"); where it is above what the receiver claims (or ``velocity_noise_m_s``), the measured one is used."""
-    gate_sigma: Annotated[float, Range(gt=0)] = 5.0
+    gate_sigma: GateSigmas = 5.0
     """A fix whose acceleration differs from the accelerometer's (rotated by the estimate) by more than this
     many sigma is a jump: kept out of the low-pass."""
-    accel_error_m_s2: Annotated[float, Range(ge=0, unit="m/s^2")] = 0.5
+    accel_error_m_s2: Annotated[float, Range(ge=0, le=100, unit="m/s^2")] = 0.5
     """The accelerometer's error in that comparison (bias, scale, vibration left over a GNSS interval), one sigma."""
     residual_lowpass_s: Seconds = 2.0
     """The same comparison, pair by pair, low-passed in the world with this time constant: how far the estimate
@@ -529,9 +541,9 @@ class LatencySettings(Settings):
     """Wait for a high quantile of each stream's measured lateness (false: always ``fuser.latency_ms``)."""
     quantile: Annotated[float, Range(gt=0, le=1)] = 0.995
     """The quantile of each stream's lateness (receive time minus placed time) that the wait covers."""
-    window_s: Annotated[float, Range(gt=0, unit="s")] = 30.0
+    window_s: Seconds = 30.0
     """Lateness is measured over each stream's samples of the last ``window_s`` (receive time)."""
-    max_ms: Annotated[float, Range(ge=0, unit="ms")] = 250.0
+    max_ms: Annotated[float, Range(ge=0, le=MAX_WAIT_MS, unit="ms")] = 250.0
     """The cap on the wait (and the wait until a stream has shown its lateness): a sample later than this
     is dropped as late rather than holding every estimate back. ``fuser.latency_ms`` wins if it is larger."""
 
@@ -562,10 +574,10 @@ class FuserConfig(Settings):
     """Name used in the zenoh key expressions ``bingham_fuser/<vehicle>/...``. None, the default: the command's
     own (:data:`fuser.cli.DEFAULT_VEHICLE`): ``sim`` for the simulated vehicle, ``vehicle`` for a live one, and
     ``listen`` hears every vehicle."""
-    rate_hz: Annotated[float, Range(gt=0, unit="Hz")] = 100.0
+    rate_hz: Annotated[float, Range(ge=1, le=MAX_RATE_HZ, unit="Hz")] = 100.0
     """Filter ticks per second, each with its estimate (between them the output predictor's at every IMU sample,
     ``[fuser.extrapolation] every_imu_sample``)."""
-    latency_ms: Annotated[float, Range(ge=0, unit="ms")] = 5.0
+    latency_ms: Annotated[float, Range(ge=0, le=MAX_WAIT_MS, unit="ms")] = 5.0
     """How long a tick waits at least after its due time for samples still in flight (``[fuser.latency]``
     waits longer on links whose latency varies)."""
     record: str | None = None

@@ -294,10 +294,18 @@ class FusionLoop:
         return out
 
     def flush(self) -> list[Estimate]:
-        """Run the ticks that cover every sample still pending (end of a log)."""
+        """Run the ticks that cover every sample still pending (end of a log), up to the one that covers the last:
+        none skipped (the samples arrived within the wait: no gap, however many periods it is) and none after it
+        (each tick lets the wait down by half a period: a flush to the last sample's due time ran on past it)."""
         if not self._pending:
             return []
-        return self.advance(max(p[0] for p in self._pending) + self.period_ns + max(self._wait_ns, self.timeline.wait_ns) - 1)
+        last_ns = max(p[0] for p in self._pending)
+        out: list[Estimate] = []
+        while self._next_tick is not None and self._next_tick - self.period_ns < last_ns:  # the tick covering it is the first at or after it
+            self._wait_ns = self._next_wait_ns()
+            out.append(self._tick(self._next_tick))
+            self._next_tick += self.period_ns
+        return out
 
     def diagnostics(self) -> dict[str, dict[str, Any]]:
         """The latest diagnostic of each measurement update (with its tick time ``t_ns``), for the status."""

@@ -357,8 +357,8 @@ class McapRecorder:
             return
         for topic, data in views:
             self.write_message(topic, est.t_ns, est.t_ns, data)
-        if est.diagnostics:
-            self.write_message("/diagnostics", est.t_ns, est.t_ns, est.diagnostics_json())
+        if est.diagnostics and (data := self._encode("/diagnostics", est.diagnostics_dict())) is not None:
+            self.write_message("/diagnostics", est.t_ns, est.t_ns, data)
 
     def write_truth(self, t_ns: int, q_wxyz: Quat, log_time_ns: int | None = None) -> None:
         """The true attitude (simulator, imported logs) on ``/truth/pose``, and its own body frame on ``/tf``.

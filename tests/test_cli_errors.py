@@ -96,7 +96,7 @@ CASES: dict[str, Case] = {
     "config-wrong-type": Case(["replay", str(LOG), "-o", "out.mcap", "--config", "c.toml"], 2, ("fuser.rate_hz", "fast"),
                               {"c.toml": _text(BAD_FUSER + 'rate_hz = "fast"\n')}),
     "config-zero-time-constant": Case(["replay", str(LOG), "-o", "out.mcap", "--config", "c.toml"], 2,
-                                      ("fuser.accel.lowpass_s must be > 0 s, got 0",), {"c.toml": _text("[fuser.accel]\nlowpass_s = 0\n")}),
+                                      ("fuser.accel.lowpass_s must be >= 0.001 s, got 0",), {"c.toml": _text("[fuser.accel]\nlowpass_s = 0\n")}),
     "config-old-flat-key": Case(["replay", str(LOG), "-o", "out.mcap", "--config", "c.toml"], 2,
                                 ("fuser.accel_lowpass_s has moved", "[fuser.accel]"), {"c.toml": _text(BAD_FUSER + "accel_lowpass_s = 0\n")}),
     # a port in use, e.g. by a ROS 2 rmw_zenoh router on 7447 (here a plain TCP listener on a free port)

@@ -73,15 +73,15 @@ def test_the_logs_configs_are_in_the_new_layout():
 
 
 @pytest.mark.parametrize("group, values, message", [
-    (AccelSettings, {"lowpass_s": 0}, "fuser.accel.lowpass_s must be > 0 s, got 0"),
+    (AccelSettings, {"lowpass_s": 0}, "fuser.accel.lowpass_s must be >= 0.001 s, got 0"),
     (AccelSettings, {"norm_gate_fraction": -0.1}, "fuser.accel.norm_gate_fraction must be > 0, got -0.1"),
-    (GyroSettings, {"max_interval_s": -1.0}, "fuser.gyro.max_interval_s must be > 0 s, got -1.0"),
+    (GyroSettings, {"max_interval_s": -1.0}, "fuser.gyro.max_interval_s must be >= 0.001 s, got -1.0"),
     (GyroSettings, {"scale_error_fraction": 1.5}, "fuser.gyro.scale_error_fraction must be < 1, got 1.5"),
     (GyroSettings, {"noise_rad_s_rt_hz": float("nan")}, "fuser.gyro.noise_rad_s_rt_hz must be a finite number, got nan"),
-    (BiasSettings, {"time_constant_s": 0.0}, "fuser.bias.time_constant_s must be > 0 s, got 0.0"),
+    (BiasSettings, {"time_constant_s": 0.0}, "fuser.bias.time_constant_s must be >= 0.001 s, got 0.0"),
     (BiasSettings, {"feedback_enabled": 0}, "fuser.bias.feedback_enabled must be true or false, got 0"),
     (BiasSettings, {"floor_sigma_rad_s": 0.1}, "fuser.bias.floor_sigma_rad_s must be <= initial_sigma_rad_s"),
-    (RestSettings, {"min_s": 0}, "fuser.rest.min_s must be > 0 s, got 0"),
+    (RestSettings, {"min_s": 0}, "fuser.rest.min_s must be >= 0.001 s, got 0"),
     (RestSettings, {"filter_s": "0.5"}, "fuser.rest.filter_s must be a number, got '0.5'"),
     (MagSettings, {"field_ned_gauss": (0.2, 0.0)}, "fuser.mag.field_ned_gauss must be a list of 3 values, got [0.2, 0.0]"),
     (MagSettings, {"field_ned_gauss": (0.0, 0.0, 0.0)}, "fuser.mag.field_ned_gauss must be a field a magnetometer reads"),
@@ -90,7 +90,7 @@ def test_the_logs_configs_are_in_the_new_layout():
     (MagSettings, {"fallback_field_ned_gauss": (0.2, 0.0, -12.0)}, "fuser.mag.fallback_field_ned_gauss must be a field"),
     (MagSettings, {"field_ned_gauss": (0.2, "x", 0.4)}, "fuser.mag.field_ned_gauss[1] must be a number, got 'x'"),
     (AttitudeSettings, {"mode": "sometimes"}, "fuser.attitude.mode must be one of 'auto', 'always', 'off', got 'sometimes'"),
-    (AttitudeSettings, {"sigma_deg": 0}, "fuser.attitude.sigma_deg must be > 0 deg, got 0"),
+    (AttitudeSettings, {"sigma_deg": 0}, "fuser.attitude.sigma_deg must be >= 0.001 deg, got 0"),
     (FuserConfig, {"rate_hz": "fast"}, "fuser.rate_hz must be a number, got 'fast'"),
     (FuserConfig, {"latency_ms": -5}, "fuser.latency_ms must be >= 0 ms, got -5"),
     (FuserConfig, {"vehicle": 3}, "fuser.vehicle must be a string, got 3"),
@@ -104,7 +104,7 @@ def test_a_bad_value_is_refused_at_construction_naming_its_key(group, values, me
 
 @pytest.mark.parametrize("text, message", [
     ('[fuser]\nrate_hz = "fast"\n', "fuser.rate_hz must be a number, got 'fast'"),
-    ("[fuser.accel]\nlowpass_s = 0\n", "fuser.accel.lowpass_s must be > 0 s, got 0"),
+    ("[fuser.accel]\nlowpass_s = 0\n", "fuser.accel.lowpass_s must be >= 0.001 s, got 0"),
     ("[fuser]\naccel_lowpass_s = 2.0\n", "fuser.accel_lowpass_s has moved: set lowpass_s under [fuser.accel]"),
     ("[fuser]\nuse_mag = false\n", "fuser.use_mag has moved: set enabled under [fuser.mag]"),
     ("[fuser]\nmag_field_ned_gauss = [0.2, 0, 0.4]\n", "fuser.mag_field_ned_gauss has moved: set field_ned_gauss under [fuser.mag]"),
@@ -142,7 +142,7 @@ def test_overrides_use_dotted_keys_and_are_checked_like_the_file(tmp_path):
     path.write_text("[fuser.mag]\nenabled = true\nerror_deg = 3.0\n")
     config = load_config(path, {"mag.enabled": False, "rate_hz": 50, "vehicle": None})
     assert not config.mag.enabled and config.mag.error_deg == 3.0 and config.rate_hz == 50.0 and config.vehicle is None
-    with pytest.raises(ValueError, match="fuser.accel.lowpass_s must be > 0 s"):
+    with pytest.raises(ValueError, match="fuser.accel.lowpass_s must be >= 0.001 s"):
         load_config(None, {"accel.lowpass_s": 0.0})
 
 
