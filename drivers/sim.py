@@ -71,6 +71,14 @@ GNSS_FIX_3D = 3
 Array = NDArray[np.float64]
 
 
+MAX_RATE_HZ = 10_000.0
+"""The fastest stream the simulator sends (IMU, attitude, magnetometer, GNSS): beyond any IMU a MAVLink link or a
+DroneCAN bus carries."""
+MAX_IMU_SAMPLES = 2_000_000
+"""The most IMU samples in one flight: the simulator lays the whole flight out in memory first, about 1.5 kB a
+sample (357 MB for 240,000), so 3 GB; 83 minutes at 400 Hz."""
+
+
 @dataclass(frozen=True)
 class SimConfig:
     """Every knob of the simulation; the defaults resemble a small quadcopter with an ICM-20602-class IMU
@@ -131,6 +139,15 @@ class SimConfig:
             value = getattr(self, name)
             if not math.isfinite(value) or value < 0 or (value == 0 and name in positive):
                 raise ValueError(f"SimConfig.{name} must be {'positive' if name in positive else 'non-negative'} and finite, got {value}")
+        rates = ("imu_rate_hz", "attitude_rate_hz", "mag_rate_hz", "gnss_rate_hz")
+        if too_fast := [f"{name} {getattr(self, name):g}" for name in rates if getattr(self, name) > MAX_RATE_HZ]:
+            raise ValueError(f"SimConfig: {', '.join(too_fast)} Hz: at most {MAX_RATE_HZ:g} Hz")
+        if not 2 <= (samples := self.duration_s * self.imu_rate_hz) <= MAX_IMU_SAMPLES:
+            raise ValueError(f"SimConfig: {self.duration_s:g} s at {self.imu_rate_hz:g} Hz is a flight of {samples:.3g} IMU samples: the "
+                             f"simulator needs 2 at least, and lays the whole flight out in memory (about 1.5 kB a sample): "
+                             f"{MAX_IMU_SAMPLES:,} at most ({MAX_IMU_SAMPLES / 400 / 60:.0f} min at 400 Hz)")
+        if not isinstance(self.seed, (int, np.integer)) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ValueError(f"SimConfig.seed must be a non-negative integer (numpy's seed), got {self.seed!r}")
         if not 0.0 <= self.dropout_probability < 1.0:
             raise ValueError(f"SimConfig.dropout_probability must be in [0, 1), got {self.dropout_probability}")
         if not -90.0 < self.origin_lat_deg < 90.0 or not -180.0 <= self.origin_lon_deg <= 180.0:

@@ -41,6 +41,7 @@ from typing import Any, Callable, Iterable, NoReturn, Sequence
 
 from drivers.base import SourceError
 from drivers.scenarios import SCENARIOS
+from drivers.sim import MAX_RATE_HZ
 from fuser import batch
 from fuser.config import FuserConfig, load_config
 from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError, check_log_file, require_package
@@ -54,6 +55,11 @@ log = logging.getLogger("bingham_fuser")
 PROG = "bingham-fuser"
 SIM_DURATION_S = 60.0
 """Length of ``sim --scenario full`` unless ``--duration`` says otherwise."""
+MAX_SPEED = 1000.0
+"""``sim --speed``'s most: a thousand times real time, beyond what the loop keeps up with (it then runs behind)."""
+MAX_GARBAGE_PER_S = 1_000_000.0
+"""``sim --garbage``'s most: 1 MB a second of noise on MAVLink, more than any telemetry link carries (frames: a 1 Mbit/s
+CAN bus carries at most about 15,000 a second)."""
 DEFAULT_BAUD = 57600
 DEFAULT_BITRATE = 1_000_000
 CAN_WITHOUT_BITRATE = ("virtual", "socketcan", "udp_multicast")
@@ -111,22 +117,51 @@ def _seconds(text: str, positive: bool = True) -> float:
     return seconds
 
 
+def _within(low: float, high: float, unit: str = "") -> Callable[[str], float]:
+    """argparse type of a number from ``low`` to ``high`` (nan, inf and anything beyond refused: a ``--speed`` of 1e300
+    overflowed the clock, an ``--imu-rate`` of 1e9 asked for 447 GiB)."""
+
+    def number(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if not low <= value <= high:  # nan fails too
+            raise argparse.ArgumentTypeError(f"expected a number from {low:g} to {high:g}{unit}, got {text!r}")
+        return value
+
+    return number
+
+
+def _seed(text: str) -> int:
+    """argparse type of a simulation seed: numpy's, a non-negative integer."""
+    try:
+        seed = int(text)
+    except ValueError:
+        seed = -1
+    if seed < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
+    return seed
+
+
 def _outage(text: str) -> tuple[float, float]:
     at, _, seconds = text.partition(":")
     try:
         out = float(at), float(seconds)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r}: expected AT:SECONDS, e.g. 4:2.5") from None
-    if out[0] < 0 or out[1] <= 0:
+    if not all(map(math.isfinite, out)) or out[0] < 0 or out[1] <= 0:
         raise argparse.ArgumentTypeError(f"{text!r}: AT must be >= 0 and SECONDS > 0")
     return out
 
 
 def _start_at(text: str) -> str:
     try:
-        float(text[1:] if text.startswith("+") else text)
+        when = float(text[1:] if text.startswith("+") else text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a Unix time or +SECONDS") from None
+        when = math.nan
+    if not math.isfinite(when) or when < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a Unix time or +SECONDS")
     return text
 
 
@@ -198,10 +233,10 @@ def _add_sim(sub: Any) -> None:
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
                         + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()).replace("%", "%%"))  # argparse %-formats help
     p.add_argument("--duration", type=_seconds, metavar="S", help=f"seconds of flight with --scenario full (default: {SIM_DURATION_S:g})")
-    p.add_argument("--speed", type=float, metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
+    p.add_argument("--speed", type=_within(0, MAX_SPEED, " times real time"), metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
     p.add_argument("--transport", choices=("mavlink", "dronecan"), help="what the vehicle speaks (default: mavlink)")
-    p.add_argument("--seed", type=int, default=0, help="simulation seed (default: 0)")
-    p.add_argument("--imu-rate", type=float, default=400.0, metavar="HZ", help="IMU rate (default: 400)")
+    p.add_argument("--seed", type=_seed, default=0, help="simulation seed (default: 0)")
+    p.add_argument("--imu-rate", type=_within(1, MAX_RATE_HZ, " Hz"), default=400.0, metavar="HZ", help="IMU rate (default: 400)")
     p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs, truth and estimates here (default: sim.mcap; '' to disable)")
     g = p.add_argument_group("send to a live fuser", "be the vehicle on the far end of a real link instead of running the loop here "
                              "(the fusion, zenoh and recording options then do not apply)")
@@ -211,7 +246,7 @@ def _add_sim(sub: Any) -> None:
     g.add_argument("--start-at", type=_start_at, metavar="UNIX_TIME|+S", help="send the first sample at this Unix time (keeps several senders "
                    "in step), or S seconds after the flight is ready (default: +0.2); the time chosen is printed")
     g.add_argument("--outage", type=_outage, metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
-    g.add_argument("--garbage", type=float, metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
+    g.add_argument("--garbage", type=_within(0, MAX_GARBAGE_PER_S, " a second"), metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
 
 
 def _add_run(sub: Any) -> None:
@@ -543,12 +578,16 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         require_scenario(args.scenario)
     except ImportError as exc:  # an optional dependency of the scenario (jsbsim for fixedwing)
         raise UsageError(f"sim: {exc}") from exc
+    try:
+        flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
+    except ValueError as exc:  # one the simulator cannot lay out (drivers.sim.SimConfig): before any output opens
+        raise UsageError(f"sim: {exc}") from exc
     if args.send or args.send_can:
         from fuser.sender import run_sender
 
         if args.truth:
             _check_output(args.truth, "--truth", _read_files(args))
-        return run_sender(args, _stop_on_signal())
+        return run_sender(args, flight, _stop_on_signal())
     if args.record:
         _check_output(args.record, "--record", _read_files(args))
     clock = WallClock.start(args.speed) if args.speed > 0 else None
@@ -567,7 +606,6 @@ def _cmd_sim(args: argparse.Namespace, config: FuserConfig) -> int:
         pipeline = Pipeline(config, ([rec.write_sample] if rec else []) + extra.inputs, _estimate_sinks(pub, rec) + extra.estimates)
         stop = _stop_on_signal()
         _warm_up(config)  # paced, before the clock matters (fuser/warmup.py); at full speed, so the first run says it compiles
-        flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
         seconds = (flight.t_ns[-1] - flight.t_ns[0]) / 1e9
         print(f"sim: {args.scenario} flight, {seconds:.0f} s at {'full speed' if args.speed <= 0 else f'{args.speed:g}x'}"
               + (f", publishing on bingham_fuser/{config.vehicle}/attitude and .../status" if pub else "")

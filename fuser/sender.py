@@ -168,14 +168,11 @@ def send_flight(
     return report
 
 
-def run_sender(args: Any, stop: Callable[[], bool]) -> int:
-    """``bingham-fuser sim --send ...``: build the flight from the sim flags, write the truth, send.
+def run_sender(args: Any, flight: Flight, stop: Callable[[], bool]) -> int:
+    """``bingham-fuser sim --send ...``: write the truth of ``flight`` (made from the sim flags), send it.
 
     The command line has checked the flags (fuser.cli): only the sender's own act here.
     """
-    from drivers.scenarios import flight as make_flight
-
-    flight = make_flight(args.scenario, args.seed, args.imu_rate, args.duration)
     if args.truth:
         write_truth(flight, args.truth)
     at, seconds = args.outage or (None, 0.0)  # parsed by the command line as (AT, SECONDS)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import sys
 
 import numpy as np
@@ -260,7 +261,7 @@ def test_world_magnetic_model_field_when_none_is_configured():
 @pytest.mark.parametrize(
     ("field", "value"),
     [("gnss_rate_hz", 0.0), ("imu_rate_hz", -1.0), ("gnss_latency_s", float("nan")), ("dropout_probability", 1.0),
-     ("rotor_drag_1_s", -0.1), ("decimal_year", 2041.0)],
+     ("rotor_drag_1_s", -0.1), ("decimal_year", 2041.0), ("imu_rate_hz", 1e9), ("gnss_rate_hz", 20_000.0), ("seed", -1)],
 )
 def test_sim_config_rejects_bad_values_naming_the_field(field, value):
     changes = {field: value, "mag_field_ned_gauss": None} if field == "decimal_year" else {field: value}
@@ -275,3 +276,11 @@ def test_fixed_wing_without_jsbsim_is_one_clear_error(monkeypatch, capsys):
     assert main(["sim", "--scenario", "fixedwing", "--speed", "0", "--no-zenoh", "-o", ""]) == 2
     err = capsys.readouterr().err
     assert "jsbsim" in err and "pip install" in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize(("duration_s", "imu_rate_hz", "samples"), [(0.001, 400.0, "0.4"), (1e12, 400.0, "4e+14"), (240.0, 10_000.0, "2.4e+06")])
+def test_a_flight_the_simulator_cannot_lay_out_is_refused_with_its_sample_count(duration_s, imu_rate_hz, samples):
+    """Fewer than two IMU samples was an IndexError deep in the simulator; a day at 10 kHz a MemoryError (447 GiB)."""
+    with pytest.raises(ValueError, match=rf"a flight of {re.escape(samples)} IMU samples: the simulator needs 2 at least"):
+        SimConfig(duration_s=duration_s, imu_rate_hz=imu_rate_hz)
+    assert len(simulate(SimConfig(duration_s=2 / 400.0)).t_ns) == 2
