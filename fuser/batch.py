@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Iterable, Sequence, TextIO
 
+from fuser import argtypes
 from fuser.config import FuserConfig
 from fuser.errors import log_file_problem
 
@@ -360,16 +361,6 @@ def _cores() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-def _jobs(text: str) -> int:
-    try:
-        n = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if n < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {n}")
-    return n
-
-
 def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
     """The ``replay`` subcommand's own arguments: one log with ``-o``, or many with ``--out-dir``."""
     parser.add_argument("log", nargs="+", help="input logs (.mcap recorded by bingham-fuser, MAVLink .tlog, or a log import reads: "
@@ -379,7 +370,7 @@ def add_replay_arguments(parser: argparse.ArgumentParser) -> None:
                                   "table; the exit status is 1 if any log failed")
     g.add_argument("--out-dir", metavar="DIR", help="folder for the replayed logs (created)")
     where = g.add_mutually_exclusive_group()
-    where.add_argument("--jobs", type=_jobs, metavar="N", help="local worker processes (default: the cores available)")
+    where.add_argument("--jobs", type=argtypes.integer(1), metavar="N", help="local worker processes (default: the cores available)")
     where.add_argument("--dask", metavar="SCHEDULER_ADDRESS", help="run each log as a task on this Dask cluster, e.g. "
                        f"tcp://host:8786; paths must be the same on the workers ({CLUSTER_EXTRA})")
 

@@ -42,7 +42,7 @@ from typing import Any, Callable, Iterable, NoReturn, Sequence
 from drivers.base import SourceError
 from drivers.scenarios import SCENARIOS
 from drivers.sim import MAX_RATE_HZ
-from fuser import batch
+from fuser import argtypes, batch
 from fuser.config import FuserConfig, load_config
 from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError, check_log_file, require_package
 from fuser.outputs import add_options as add_output_options
@@ -115,33 +115,6 @@ def _seconds(text: str, positive: bool = True) -> float:
     if not math.isfinite(seconds) or seconds < 0 or (positive and seconds == 0):
         raise argparse.ArgumentTypeError(f"expected a finite number of seconds {'>' if positive else '>='} 0, got {text!r}")
     return seconds
-
-
-def _within(low: float, high: float, unit: str = "") -> Callable[[str], float]:
-    """argparse type of a number from ``low`` to ``high`` (nan, inf and anything beyond refused: a ``--speed`` of 1e300
-    overflowed the clock, an ``--imu-rate`` of 1e9 asked for 447 GiB)."""
-
-    def number(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        if not low <= value <= high:  # nan fails too
-            raise argparse.ArgumentTypeError(f"expected a number from {low:g} to {high:g}{unit}, got {text!r}")
-        return value
-
-    return number
-
-
-def _seed(text: str) -> int:
-    """argparse type of a simulation seed: numpy's, a non-negative integer."""
-    try:
-        seed = int(text)
-    except ValueError:
-        seed = -1
-    if seed < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}")
-    return seed
 
 
 def _outage(text: str) -> tuple[float, float]:
@@ -233,10 +206,10 @@ def _add_sim(sub: Any) -> None:
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
                         + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()).replace("%", "%%"))  # argparse %-formats help
     p.add_argument("--duration", type=_seconds, metavar="S", help=f"seconds of flight with --scenario full (default: {SIM_DURATION_S:g})")
-    p.add_argument("--speed", type=_within(0, MAX_SPEED, " times real time"), metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
+    p.add_argument("--speed", type=argtypes.number(0, MAX_SPEED, " times real time"), metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
     p.add_argument("--transport", choices=("mavlink", "dronecan"), help="what the vehicle speaks (default: mavlink)")
-    p.add_argument("--seed", type=_seed, default=0, help="simulation seed (default: 0)")
-    p.add_argument("--imu-rate", type=_within(1, MAX_RATE_HZ, " Hz"), default=400.0, metavar="HZ", help="IMU rate (default: 400)")
+    p.add_argument("--seed", type=argtypes.integer(0), default=0, help="simulation seed (default: 0)")
+    p.add_argument("--imu-rate", type=argtypes.number(1, MAX_RATE_HZ, " Hz"), default=400.0, metavar="HZ", help="IMU rate (default: 400)")
     p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs, truth and estimates here (default: sim.mcap; '' to disable)")
     g = p.add_argument_group("send to a live fuser", "be the vehicle on the far end of a real link instead of running the loop here "
                              "(the fusion, zenoh and recording options then do not apply)")
@@ -246,7 +219,7 @@ def _add_sim(sub: Any) -> None:
     g.add_argument("--start-at", type=_start_at, metavar="UNIX_TIME|+S", help="send the first sample at this Unix time (keeps several senders "
                    "in step), or S seconds after the flight is ready (default: +0.2); the time chosen is printed")
     g.add_argument("--outage", type=_outage, metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
-    g.add_argument("--garbage", type=_within(0, MAX_GARBAGE_PER_S, " a second"), metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
+    g.add_argument("--garbage", type=argtypes.number(0, MAX_GARBAGE_PER_S, " a second"), metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
 
 
 def _add_run(sub: Any) -> None:
@@ -259,9 +232,9 @@ def _add_run(sub: Any) -> None:
     _link(p)
     g = p.add_argument_group("inputs")
     g.add_argument("--mavlink", action="append", default=[], type=mavlink_connection, metavar="CONN", help="MAVLink connection (repeatable)")
-    g.add_argument("--baud", type=int, metavar="BAUD", help=f"serial baud rate of the serial --mavlink connections (default: {DEFAULT_BAUD})")
+    g.add_argument("--baud", type=argtypes.integer(1), metavar="BAUD", help=f"serial baud rate of the serial --mavlink connections (default: {DEFAULT_BAUD})")
     g.add_argument("--can", action="append", default=[], type=_can_bus, metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
-    g.add_argument("--bitrate", type=int, help=f"CAN bitrate for interfaces that set one, e.g. slcan (default: {DEFAULT_BITRATE})")
+    g.add_argument("--bitrate", type=argtypes.integer(1), help=f"CAN bitrate for interfaces that set one, e.g. slcan (default: {DEFAULT_BITRATE})")
     g.add_argument("--request-rate", type=float, dest="request_rate_hz", metavar="HZ",
                    help="ask each MAVLink vehicle to stream its IMU and attitude at HZ (GNSS at most 10 Hz), as a ground "
                         "station does, repeated until they come (default: only listen; drivers/stream_request.py)")
@@ -313,7 +286,7 @@ def _add_listen(sub: Any) -> None:
     _vehicle_option(p)
     _zenoh_subscribe_options(p)
     p.add_argument("--json", action="store_true", help="print the raw JSON payloads")
-    p.add_argument("--count", type=int, metavar="N", help="stop after N estimates")
+    p.add_argument("--count", type=argtypes.integer(1), metavar="N", help="stop after N estimates")
 
 
 def _add_report(sub: Any) -> None:

@@ -18,6 +18,7 @@ from typing import Any
 from collections.abc import Callable
 
 from drivers.link import check_connection
+from fuser import argtypes
 from fuser.config import FuserConfig
 
 __all__ = ["Outputs", "add_options", "mavlink_connection", "open_outputs"]
@@ -39,7 +40,7 @@ def add_options(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("outputs for other programs", "ROS 2, Foxglove and ground stations (see the README)")
     g.add_argument("--ros2", action="store_true", help="publish sensor_msgs/Imu on /bingham_fuser/attitude and PoseWithCovarianceStamped "
                    "on /bingham_fuser/pose over rmw_zenoh, via the ROS 2 router on tcp/localhost:7447 (settings: [fuser.ros2])")
-    g.add_argument("--foxglove", nargs="?", const=FOXGLOVE_PORT, type=int, metavar="PORT",
+    g.add_argument("--foxglove", nargs="?", const=FOXGLOVE_PORT, type=argtypes.integer(1, 65535), metavar="PORT",
                    help=f"serve a live Foxglove view on ws://127.0.0.1:PORT (default {FOXGLOVE_PORT})")
     g.add_argument("--mavlink-out", type=mavlink_connection, metavar="CONN", help="send the fused attitude (ATTITUDE_QUATERNION, "
                    "ATTITUDE, 1 Hz HEARTBEAT) to a ground station, e.g. udpout:127.0.0.1:14550 (settings: [fuser.mavlink_out])")

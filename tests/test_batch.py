@@ -181,7 +181,7 @@ def test_cli_batch_exit_status_and_table(logs, tmp_path, capsys):
         (["replay", str(HOVER), str(HOVER), "-o", "x.mcap"], "-o is for one log"),
         (["replay", str(HOVER), "-o", "x.mcap", "--jobs", "2"], "need --out-dir"),
         (["replay", str(HOVER), str(HOVER)], "--out-dir DIR"),
-        (["replay", str(HOVER), "--out-dir", "d", "--jobs", "0"], "must be at least 1"),
+        (["replay", str(HOVER), "--out-dir", "d", "--jobs", "0"], "expected a whole number of at least 1"),
         (["replay", str(HOVER), "--out-dir", "d", "--jobs", "2", "--dask", "tcp://127.0.0.1:1"], "not allowed with"),
     ],
 )
