@@ -464,8 +464,12 @@ def _config(args: argparse.Namespace) -> FuserConfig:
     if getattr(args, "any_sender", False):
         overrides["link.lock_first_autopilot"] = False
     config = load_config(args.config, overrides)
-    if config.vehicle is None and args.command in DEFAULT_VEHICLE:
-        config = config.replace(vehicle=DEFAULT_VEHICLE[args.command])
+    if args.command in DEFAULT_VEHICLE:
+        from fuser.publish import check_vehicle
+
+        if config.vehicle is None:
+            config = config.replace(vehicle=DEFAULT_VEHICLE[args.command])
+        check_vehicle(config.vehicle, listening=args.command == "listen")
     return config
 
 

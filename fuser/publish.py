@@ -50,6 +50,22 @@ def key(vehicle: str, leaf: str) -> str:
     return f"bingham_fuser/{vehicle}/{leaf}"
 
 
+def check_vehicle(vehicle: str, listening: bool = False) -> None:
+    """A ValueError unless ``vehicle`` is one chunk of a zenoh key expression without wildcards (``*`` alone too
+    when ``listening``: every vehicle). An empty name, a ``/``, ``#``, ``?`` or ``$`` made every put fail (the run went
+    on publishing nothing), and a ``*`` would publish one vehicle's estimates as every vehicle's."""
+    if listening and vehicle == "*":
+        return
+    problem = "it is empty" if not vehicle else "it holds a '/' or a '*'" if {"/", "*"} & set(vehicle) else None
+    if problem is None:
+        try:
+            zenoh.KeyExpr(key(vehicle, "attitude"))
+        except zenoh.ZError as e:  # the message ends with the location in zenoh's sources
+            problem = str(e).split(" at /")[0]
+    if problem is not None:
+        raise ValueError(f"fuser.vehicle {vehicle!r} is not a name for the zenoh keys bingham_fuser/<vehicle>/...: {problem}")
+
+
 class ZenohOpenError(FuserError):
     """A zenoh session could not be opened.
 

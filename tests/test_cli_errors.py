@@ -260,6 +260,12 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "listen-count-zero": (["listen", "--count", "0"], 2, ("argument --count", "of at least 1")),  # it listened for ever
     "run-negative-bitrate": (["run", "--can", "virtual:x", "--no-zenoh", "--bitrate", "-1"], 2, ("argument --bitrate",)),
     "run-zero-baud": (["run", "--mavlink", "/dev/ttyS0", "--no-zenoh", "--baud", "0"], 2, ("argument --baud",)),
+    # a vehicle name that is no zenoh key chunk: every put failed (one error logged) and the run published nothing, exit 0
+    "sim-vehicle-empty": (["sim", "--speed", "0", "-o", "", "--vehicle", ""], 2, ("fuser.vehicle '' is not a name", "it is empty")),
+    "run-vehicle-with-slash": (["run", "--mavlink", "udpin:127.0.0.1:9", "--vehicle", "fleet/7"], 2, ("fuser.vehicle 'fleet/7'", "'/'")),
+    "sim-vehicle-wildcard": (["sim", "--speed", "0", "-o", "", "--vehicle", "*"], 2, ("fuser.vehicle '*'",)),
+    "sim-vehicle-question-mark": (["sim", "--speed", "0", "-o", "", "--vehicle", "x?y"], 2, ("fuser.vehicle 'x?y'", "forbidden")),
+    "listen-vehicle-with-slash": (["listen", "--vehicle", "a/b"], 2, ("fuser.vehicle 'a/b'",)),
     "import-text-named-ulg": (["import", "text.ulg", "-o", "x.mcap"], 2, ("cannot read text.ulg as a px4 log",)),
     "abbreviation": (["sim", "--dur", "5"], 2, ("sim does not take --dur 5",)),
     "unknown-command": (["fly"], 2, ("invalid choice: 'fly'",)),

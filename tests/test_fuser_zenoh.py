@@ -190,3 +190,16 @@ def test_each_command_names_its_vehicle_unless_one_is_configured(tmp_path: Path)
     assert vehicle(["run", "--mavlink", "udpin:127.0.0.1:14550", "--vehicle", "hexa1"]) == "hexa1"
     (tmp_path / "fleet.toml").write_text('[fuser]\nvehicle = "hexa2"\n')
     assert vehicle(["listen", "--config", str(tmp_path / "fleet.toml")]) == "hexa2"
+
+
+def test_a_vehicle_name_is_one_chunk_of_the_zenoh_keys():
+    """What the keys ``bingham_fuser/<vehicle>/...`` can hold (zenoh's own parser decides, and no wildcard is
+    published); ``*`` is a listener's every vehicle."""
+    from fuser.publish import check_vehicle
+
+    for name in ("sim", "vehicle", "drone 1", "uav-7_b", "ä"):
+        check_vehicle(name)
+    check_vehicle("*", listening=True)
+    for name in ("", "a/b", "*", "**", "$x", "x#y", "x?y"):
+        with pytest.raises(ValueError, match="is not a name for the zenoh keys"):
+            check_vehicle(name)
