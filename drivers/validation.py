@@ -17,6 +17,9 @@ ACCEL_MAX_M_S2 = 160.0
 """Per axis; 16 g full scale is 157 m/s^2."""
 MAG_MAX_GAUSS = 10.0
 """Per axis; the Earth's field is below 0.7 gauss."""
+MAG_MIN_FIELD_GAUSS = 1e-3
+"""The weakest field that can be a heading reference (norm): a two-hundredth of the Earth's weakest, 0.22 gauss. A
+reference of 1e-300 gauss divided by zero inside the filter."""
 GNSS_VELOCITY_MAX_M_S = 300.0
 """Per axis; well above any UAV (and below the 515 m/s export limit of civil receivers)."""
 QUAT_NORM_TOL = 0.05

@@ -31,7 +31,7 @@ from pathlib import Path
 from typing import Annotated, Any, ClassVar, Literal
 
 from drivers.link import LinkSettings
-from drivers.validation import MAG_MAX_GAUSS
+from drivers.validation import MAG_MAX_GAUSS, MAG_MIN_FIELD_GAUSS
 from fuser.mavlink_out import MavlinkOutSettings
 from fuser.ros2 import Ros2Settings
 
@@ -385,8 +385,8 @@ class MagSettings(Settings):
     def _validate(self) -> None:
         for key in ("field_ned_gauss", "fallback_field_ned_gauss"):
             value = getattr(self, key)
-            if value is not None and not 0.0 < math.hypot(*value) <= MAG_MAX_GAUSS:  # NaN fails too
-                raise ValueError(f"{self.section}.{key} must be a field a magnetometer reads (norm above 0 and at most "
+            if value is not None and not MAG_MIN_FIELD_GAUSS <= math.hypot(*value) <= MAG_MAX_GAUSS:  # NaN fails too
+                raise ValueError(f"{self.section}.{key} must be a field a magnetometer reads (norm {MAG_MIN_FIELD_GAUSS:g} to "
                                  f"{MAG_MAX_GAUSS:g} gauss, the drivers' range; the Earth's is 0.22-0.67), got {list(value)!r}")
 
     @property

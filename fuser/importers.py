@@ -115,7 +115,7 @@ from drivers.mavlink_decode import MavlinkDecoder
 from drivers.mavlink_encode import MavlinkEncoder, UnencodableSample
 from drivers.samples import AttitudeSample, GnssSample, ImuSample, SourceId
 from drivers.timebase import MAX_TIME_NS, NS_PER_MS, NS_PER_US
-from drivers.validation import ACCEL_MAX_M_S2, MAG_MAX_GAUSS
+from drivers.validation import ACCEL_MAX_M_S2, MAG_MAX_GAUSS, MAG_MIN_FIELD_GAUSS
 from fuser.config import MagSettings
 
 __all__ = [
@@ -275,14 +275,14 @@ def field_from_rest(accel: np.ndarray, mag: np.ndarray) -> tuple[float, float, f
     are computed per sample and then averaged, so slow rotation during the
     window does not bias them (a mean of vectors would). Only samples the
     drivers would accept count (finite, within ``drivers.validation``'s
-    ranges, some specific force): one damaged record must not become the
-    reference every heading is measured against.
+    ranges, some specific force, a field a reference can be): one damaged
+    record must not become the reference every heading is measured against.
     """
     a = np.asarray(accel, dtype=float).reshape(-1, 3)
     m = np.asarray(mag, dtype=float).reshape(-1, 3)
     with np.errstate(invalid="ignore"):
         usable = (np.all(np.abs(a) <= ACCEL_MAX_M_S2, axis=1) & np.all(np.abs(m) <= MAG_MAX_GAUSS, axis=1)
-                  & (np.linalg.norm(a, axis=1) > 0.0) & (np.linalg.norm(m, axis=1) > 0.0))
+                  & (np.linalg.norm(a, axis=1) > 0.0) & (np.linalg.norm(m, axis=1) >= MAG_MIN_FIELD_GAUSS))
     if not np.any(usable):
         return None
     a, m = a[usable], m[usable]

@@ -86,7 +86,9 @@ def test_the_logs_configs_are_in_the_new_layout():
     (MagSettings, {"field_ned_gauss": (0.2, 0.0)}, "fuser.mag.field_ned_gauss must be a list of 3 values, got [0.2, 0.0]"),
     (MagSettings, {"field_ned_gauss": (0.0, 0.0, 0.0)}, "fuser.mag.field_ned_gauss must be a field a magnetometer reads"),
     # a damaged log's import once wrote this reference field: one corrupt sample in the mean of its first 2 s
-    (MagSettings, {"field_ned_gauss": (153048249195.6, 0.0, 305775516277.5)}, "norm above 0 and at most 10 gauss"),
+    (MagSettings, {"field_ned_gauss": (153048249195.6, 0.0, 305775516277.5)}, "norm 0.001 to 10 gauss"),
+    (MagSettings, {"field_ned_gauss": (1e-300, 0.0, 0.0)}, "norm 0.001 to 10 gauss"),  # divided by zero in the filter
+    (MagSettings, {"fallback_field_ned_gauss": (0.0, 0.0, 1e-4)}, "fallback_field_ned_gauss must be a field"),
     (MagSettings, {"fallback_field_ned_gauss": (0.2, 0.0, -12.0)}, "fuser.mag.fallback_field_ned_gauss must be a field"),
     (MagSettings, {"field_ned_gauss": (0.2, "x", 0.4)}, "fuser.mag.field_ned_gauss[1] must be a number, got 'x'"),
     (AttitudeSettings, {"mode": "sometimes"}, "fuser.attitude.mode must be one of 'auto', 'always', 'off', got 'sometimes'"),

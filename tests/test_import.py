@@ -81,6 +81,11 @@ def test_field_from_rest_recovers_norm_and_dip():
     accel = np.tile(body(np.array([0.0, 0.0, -9.81])), (10, 1))
     mag = np.tile(body(field_ned), (10, 1))
     np.testing.assert_allclose(field_from_rest(accel, mag), field_ned, atol=1e-9)
+    # readings too weak to be a reference (a magnetometer that sends zeros or denormals) are not averaged in
+    weak = mag.copy()
+    weak[:5] = 1e-300
+    np.testing.assert_allclose(field_from_rest(accel, weak), field_ned, atol=1e-9)
+    assert field_from_rest(accel, np.full_like(mag, 1e-300)) is None
 
 
 # -- the cuts in logs/ ----------------------------------------------------------------------------
