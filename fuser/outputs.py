@@ -40,7 +40,7 @@ def add_options(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("outputs for other programs", "ROS 2, Foxglove and ground stations (see the README)")
     g.add_argument("--ros2", action="store_true", help="publish sensor_msgs/Imu on /bingham_fuser/attitude and PoseWithCovarianceStamped "
                    "on /bingham_fuser/pose over rmw_zenoh, via the ROS 2 router on tcp/localhost:7447 (settings: [fuser.ros2])")
-    g.add_argument("--foxglove", nargs="?", const=FOXGLOVE_PORT, type=argtypes.integer(1, 65535), metavar="PORT",
+    g.add_argument("--foxglove", nargs="?", const=FOXGLOVE_PORT, type=argtypes.integer(0, 65535), metavar="PORT",
                    help=f"serve a live Foxglove view on ws://127.0.0.1:PORT (default {FOXGLOVE_PORT})")
     g.add_argument("--mavlink-out", type=mavlink_connection, metavar="CONN", help="send the fused attitude (ATTITUDE_QUATERNION, "
                    "ATTITUDE, 1 Hz HEARTBEAT) to a ground station, e.g. udpout:127.0.0.1:14550 (settings: [fuser.mavlink_out])")
@@ -89,6 +89,8 @@ def open_outputs(stack: ExitStack, config: FuserConfig, args: argparse.Namespace
 
         fox = FoxgloveLive(args.foxglove)
         stack.callback(fox.close)
+        if fox.port is not None:  # the port bound: with --foxglove 0, the one the system chose
+            print(f"foxglove: live view on ws://127.0.0.1:{fox.port} (Foxglove: Open connection, Foxglove WebSocket)", file=sys.stderr)
         out.estimates.append(fox.write_estimate)
         out.inputs.append(fox.write_sample)
         out.truth.append(fox.write_truth)

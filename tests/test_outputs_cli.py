@@ -72,7 +72,9 @@ def test_sim_publishes_to_ros2_foxglove_and_a_ground_station(tmp_path: Path, cap
     # 12 s of hover at 50 Hz: every estimate published on ROS 2 (the sequence numbers count them; a burst this
     # fast may meet congestion control "drop" on a loaded machine), 5 Hz attitudes and 1 Hz heartbeats from 191
     seqs = [struct.unpack_from("<q", a)[0] for _, a in imu]
-    estimates = int(re.search(r"-> (\d+) estimates", capsys.readouterr().out)[1])
+    captured = capsys.readouterr()
+    estimates = int(re.search(r"-> (\d+) estimates", captured.out)[1])
+    assert re.search(r"^foxglove: live view on ws://127\.0\.0\.1:[1-9]\d* ", captured.err, re.M), captured.err  # the port bound for 0
     assert 590 <= estimates <= 601 and imu and seqs == sorted(set(seqs)) and estimates - 10 <= seqs[-1] <= estimates
     assert all(p[:4] == b"\x00\x01\x00\x00" for p, _ in imu)
     counts = {k: sum(1 for h in heard if h[0] == k) for k in ("ATTITUDE_QUATERNION", "HEARTBEAT")}
