@@ -215,8 +215,8 @@ def _in_processes(tasks: Sequence[LogTask], jobs: int, done: Callable[[LogResult
         for task in _largest_first(tasks):
             try:
                 futures[pool.submit(run_task, task)] = task
-            except (BrokenProcessPool, OSError):  # broken already, or while spawning a worker ("handle is closed")
-                broken.append(task)
+            except (BrokenProcessPool, OSError, ValueError):  # broken already, or while spawning a worker: "handle is closed",
+                broken.append(task)  # or "bad value(s) in fds_to_keep" (the dead worker's pipe closed under the spawn)
         for future in as_completed(futures):
             try:
                 done(future.result())
