@@ -77,7 +77,7 @@ from drivers.samples import GnssSample
 from drivers.timebase import MAX_TIME_NS
 from fuser.progress import progress_bar
 
-from .importers import (MAVLINK_SOURCE, ImuStream, SensorData, field_from_gnss, field_from_rest, in_cut, mag_on_next_imu,
+from .importers import (MAVLINK_SOURCE, EmptyCut, ImuStream, SensorData, field_from_gnss, field_from_rest, in_cut, mag_on_next_imu,
                         rest_field_source)
 
 __all__ = ["read_dataflash"]
@@ -301,7 +301,8 @@ def read_dataflash(path: str | Path, start_s: float = 0.0, duration_s: float | N
                 skipped["mag_after_last_imu"] += late
         imus.append(ImuStream(i, t_ns, raw[:, 1:4], raw[:, 4:7], mag))
     if not imus:
-        raise ValueError(f"{path}: no IMU records from {start_s:g} s" + (f" for {duration_s:g} s" if duration_s else ""))
+        first = data[f"imu{instances[0]}"][:, 0]
+        raise EmptyCut(float(first.max() - first.min()) / 1e9)
     for key in data:
         if key.startswith("mag") and int(key[3:]) not in instances:
             skipped["mag_without_imu"] += len(data[key])

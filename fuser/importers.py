@@ -225,6 +225,15 @@ class SensorData:
         return self.imus[0].mag
 
 
+class EmptyCut(ValueError):
+    """A reader's ``start_s`` and ``duration_s`` leave no IMU sample of a log whose IMU data lasts ``length_s`` (an empty
+    import was written as an MCAP of nothing, with the fallback field printed as the one measured, exit 0)."""
+
+    def __init__(self, length_s: float) -> None:
+        super().__init__(f"the log holds {length_s:.1f} s of IMU data")
+        self.length_s = length_s
+
+
 @dataclass(frozen=True)
 class ImportSummary:
     path: Path
@@ -305,6 +314,8 @@ def read_broad(path: str | Path, start_s: float = 0.0, duration_s: float | None 
     n = len(gyr)
     i0 = int(round(start_s * fs))
     i1 = n if duration_s is None else min(n, i0 + int(round(duration_s * fs)))
+    if i1 <= i0:
+        raise EmptyCut((n - 1) / fs)
     sl = slice(i0, i1)
     gyro, accel = broad_vectors_to_frd(gyr[sl]), broad_vectors_to_frd(acc[sl])
     mag_g = broad_vectors_to_frd(mag[sl]) * UT_TO_GAUSS
@@ -493,6 +504,8 @@ def read_px4(path: str | Path, start_s: float = 0.0, duration_s: float | None = 
     t0 = int(t_us[valid].min() + start_s * 1e6)  # the earliest: a damaged first record's time may lie ahead
     t1 = None if duration_s is None else t0 + int(duration_s * 1e6)
     keep = valid & in_cut(t_us, t0, t1)
+    if not np.any(keep):
+        raise EmptyCut(float(t_us[valid].max() - t_us[valid].min()) / 1e6)
     gyro = _ulog_vec(sc, "gyro_rad")[keep]
     accel = _ulog_vec(sc, "accelerometer_m_s2")[keep]
     mag = _ulog_vec(sc, "magnetometer_ga")[keep] if "magnetometer_ga[0]" in sc else _px4_magnetometer(topics, t_us[keep] * 1000, t0, t1, skipped)
@@ -705,6 +718,9 @@ def read_sensor_log(path: str | Path, fmt: str | None = None, start_s: float = 0
     reader = {"broad": read_broad, "px4": read_px4, "dataflash": functools.partial(read_dataflash, progress=progress)}[fmt]
     try:
         return reader(path, start_s, duration_s)
+    except EmptyCut as exc:  # the user's window, not the file: a usage error
+        window = f"from --start {start_s:g} s" + (f" for --duration {duration_s:g} s" if duration_s is not None else "")
+        raise UsageError(f"nothing in {path} {window}: {exc}") from exc
     except Exception as exc:  # noqa: BLE001 - h5py, pyulog and DFReader raise anything on a file that is not theirs
         raise NotALogError(f"cannot read {path} as a {fmt} log: {type(exc).__name__}: {exc}") from exc
 

@@ -209,7 +209,8 @@ def _open_mcap(log: Path) -> LogStream:
     stream = LogStream(log)
     overview = stream.overview
     if not overview.count(INPUT_TOPICS):
-        what = overview.describe() if overview.records else f"no record could be read ({overview.error})"
+        what = (overview.describe() if overview.records else f"no record could be read ({overview.error})" if overview.error
+                else "it holds no messages")
         raise ReplayError(f"nothing to replay in {log}: no input samples ({what})")
     return stream
 

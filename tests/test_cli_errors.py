@@ -49,6 +49,19 @@ def damaged_log() -> tuple[bytes, int, int]:
     return damage(LOG.read_bytes(), *spans[3], "data"), spans[3][1], len(contents[3])
 
 
+def mcap_without_messages() -> bytes:
+    """A sound MCAP file the recorder opened and closed without a record."""
+    import io
+
+    from mcap.writer import Writer
+
+    out = io.BytesIO()
+    writer = Writer(out)
+    writer.start(profile="", library="test")
+    writer.finish()
+    return out.getvalue()
+
+
 DAMAGED, DAMAGED_BYTES, DAMAGED_MESSAGES = damaged_log()
 BUSY_PORT = free_port()
 CLOSED_PORT = free_port()
@@ -62,6 +75,8 @@ CASES: dict[str, Case] = {
     "replay-random-bytes": Case(["replay", "in.mcap", "-o", "out.mcap"], 2, ("not an MCAP",), {"in.mcap": RANDOM}),
     "replay-text-named-mcap": Case(["replay", "in.mcap", "-o", "out.mcap"], 2, ("not an MCAP",), {"in.mcap": _text("hello\n" * 50)}),
     "replay-text-named-tlog": Case(["replay", "in.tlog", "-o", "out.mcap"], 2, ("in.tlog is not a MAVLink telemetry log",), {"in.tlog": _text("hello\n" * 50)}),
+    "replay-no-messages": Case(["replay", "in.mcap", "-o", "out.mcap"], 1, ("nothing to replay in in.mcap", "it holds no messages"),
+                               {"in.mcap": mcap_without_messages()}),  # it said "no record could be read (None)"
     "replay-damaged-chunk": Case(["replay", "in.mcap", "-o", "out.mcap"], 0,
                                  ("warning: in.mcap is damaged", f"skipped 1 chunk ({DAMAGED_BYTES:,} bytes, {DAMAGED_MESSAGES} messages)"),
                                  {"in.mcap": DAMAGED}, writes=("out.mcap",)),

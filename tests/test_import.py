@@ -10,6 +10,7 @@ Tests that read ``../shared/data`` skip when it is absent.
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -224,6 +225,28 @@ def test_import_writes_every_record_in_log_time_order(tmp_path):
     contents = read_log(tmp_path / "sample.mcap")
     assert (s.imu, s.attitude, s.truth) == (17070, 6460, 6460)
     assert [len(contents.of([t])) for t in ("/input/imu", "/input/attitude", "/truth/pose", "/tf")] == [17070, 6460, 6460, 6460]
+
+
+@pytest.mark.parametrize("log", [BROAD_TRIAL, PX4_LOG], ids=lambda p: p.suffix)
+def test_a_window_after_the_logs_end_is_one_usage_error_naming_its_length(log, tmp_path):
+    """It wrote an MCAP of nothing (the fallback field printed as if measured), exit 0; the replay then failed. The
+    length is the reader's own: BROAD's sample count over its rate, the ULog's sensor_combined span."""
+    if not log.exists():
+        pytest.skip("../shared/data not available")
+    from fuser.errors import UsageError
+    from fuser.importers import import_log
+
+    if log.suffix == ".hdf5":
+        h5py = pytest.importorskip("h5py")
+        with h5py.File(log) as f:
+            length_s = (len(f["imu_gyr"]) - 1) / float(f.attrs["sampling_rate"])
+    else:
+        t_us = pytest.importorskip("pyulog").ULog(str(log), ["sensor_combined"]).get_dataset("sensor_combined").data["timestamp"]
+        length_s = (int(t_us.max()) - int(t_us.min())) / 1e6
+    with pytest.raises(UsageError, match=rf"^nothing in {re.escape(str(log))} from --start 1e\+09 s for --duration 5 s: "
+                                         rf"the log holds {length_s:.1f} s of IMU data$"):
+        import_log(log, tmp_path / "o.mcap", start_s=1e9, duration_s=5.0)
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("cut", [BROAD_CUT, PX4_CUT], ids=lambda p: p.stem)

@@ -364,6 +364,17 @@ def test_replaying_the_log_itself_is_importing_it_then_replaying_with_its_field(
     assert configured != [m.data for m in direct.of(["/estimate"])]
 
 
+def test_a_start_after_the_logs_end_is_one_clear_error_and_writes_nothing(written, tmp_path, capsys):
+    """It wrote an MCAP of nothing with the fallback field as if measured, exit 0; the replay then failed."""
+    first = min(t for t, *_ in written.imu[0])
+    last = max(t for t, *_ in written.imu[0])
+    assert main(["import", str(written.path), "-o", str(tmp_path / "o.mcap"), "--start", "1e6"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"bingham-fuser: import: nothing in {written.path} from --start 1e+06 s: the log holds "
+                   f"{(last - first) / 1e9:.1f} s of IMU data"]
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_file_that_is_not_a_dataflash_log_is_one_clear_error(tmp_path):
     bogus = tmp_path / "notes.bin"
     bogus.write_bytes(b"this is not a log\n" * 40)
