@@ -40,6 +40,9 @@ SIGNING_KEY_BYTES = 32
 """Length of a MAVLink 2 secret key (the SETUP_SIGNING message's ``secret_key``)."""
 MAX_REQUEST_RATE_HZ = 1000.0
 """The fastest rate ``request_rate_hz`` may ask for (an IMU's; a MAVLink message interval is in whole microseconds)."""
+MIN_REQUEST_RATE_HZ = 0.1
+"""The slowest: an IMU every ten seconds carries no attitude (and the interval, a float32 of microseconds, stays finite:
+1e-300 Hz asked the vehicle for an infinite one)."""
 _DIALECT_NAME = re.compile(r"[A-Za-z0-9_]+")
 _CONTROL = re.compile(rb"[\x00-\x08\x0b\x0c\x0e-\x1f\x7f]")
 """Control characters other than a tab, a newline and a carriage return: not in a line of text."""
@@ -119,8 +122,8 @@ class LinkSettings:
         if self.signing_key_file is not None and (not isinstance(self.signing_key_file, str) or not self.signing_key_file):
             raise ValueError(f"link.signing_key_file: a file name (or unset), got {self.signing_key_file!r}")
         rate = self.request_rate_hz
-        if rate is not None and not (type(rate) in (int, float) and math.isfinite(rate) and 0 < rate <= MAX_REQUEST_RATE_HZ):
-            raise ValueError(f"link.request_rate_hz: a number of Hz in (0, {MAX_REQUEST_RATE_HZ:g}] (or unset), got {rate!r}")
+        if rate is not None and not (type(rate) in (int, float) and MIN_REQUEST_RATE_HZ <= rate <= MAX_REQUEST_RATE_HZ):  # nan fails
+            raise ValueError(f"link.request_rate_hz: a number of Hz from {MIN_REQUEST_RATE_HZ:g} to {MAX_REQUEST_RATE_HZ:g} (or unset), got {rate!r}")
         if not isinstance(self.dialect, str) or not _DIALECT_NAME.fullmatch(self.dialect) or (
             importlib.util.find_spec(f"pymavlink.dialects.v20.{self.dialect}") is None
         ):

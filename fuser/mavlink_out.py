@@ -74,8 +74,8 @@ class MavlinkOutSettings:
                 check_connection(self.connection)
             except ValueError as exc:
                 raise ValueError(f"mavlink_out.connection: {exc}") from None
-        if not (isinstance(self.rate_hz, (int, float)) and 0 < self.rate_hz <= 1000):
-            raise ValueError(f"mavlink_out.rate_hz: must be in (0, 1000], got {self.rate_hz!r}")
+        if not (isinstance(self.rate_hz, (int, float)) and 0.1 <= self.rate_hz <= 1000):  # 1e-300 overflowed the next send's time
+            raise ValueError(f"mavlink_out.rate_hz: must be from 0.1 to 1000, got {self.rate_hz!r}")
         if self.system_id is not None and not (isinstance(self.system_id, int) and 1 <= self.system_id <= 255):
             raise ValueError(f"mavlink_out.system_id: must be an integer in 1..255 or unset, got {self.system_id!r}")
         if not (isinstance(self.component_id, int) and 1 <= self.component_id <= 255):

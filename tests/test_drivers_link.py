@@ -212,7 +212,7 @@ def test_an_unusable_key_file_is_a_source_error_naming_the_setting(tmp_path, con
     "field, value",
     [("system", 0), ("system", 256), ("system", "1"), ("component", True), ("lock_first_autopilot", "yes"),
      ("dialect", "nosuch"), ("dialect", "../common"), ("signing_key_file", ""), ("request_rate_hz", 0.0),
-     ("request_rate_hz", -5.0), ("request_rate_hz", float("nan")), ("request_rate_hz", float("inf")), ("request_rate_hz", 1001.0),
+     ("request_rate_hz", -5.0), ("request_rate_hz", float("nan")), ("request_rate_hz", float("inf")), ("request_rate_hz", 1001.0), ("request_rate_hz", 1e-300),
      ("request_rate_hz", "50"), ("request_rate_hz", True)],
 )
 def test_settings_are_validated_naming_the_key(field, value):

@@ -90,7 +90,8 @@ def test_a_ground_station_receives_the_fused_attitude_from_its_own_component() -
 
 
 def test_settings_are_validated() -> None:
-    for kwargs, key in [({"rate_hz": 0}, "mavlink_out.rate_hz"), ({"system_id": 0}, "mavlink_out.system_id"),
+    for kwargs, key in [({"rate_hz": 0}, "mavlink_out.rate_hz"), ({"rate_hz": 1e-300}, "mavlink_out.rate_hz"),  # 1e-300: an overflow
+                        ({"system_id": 0}, "mavlink_out.system_id"),
                         ({"component_id": 1}, "mavlink_out.component_id"), ({"component_id": 300}, "mavlink_out.component_id"),
                         ({"connection": "notaconn"}, "mavlink_out.connection"), ({"connection": "udpout:127.0.0.1:99999"},
                                                                                 "mavlink_out.connection")]:
