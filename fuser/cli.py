@@ -464,12 +464,13 @@ def _config(args: argparse.Namespace) -> FuserConfig:
     if getattr(args, "any_sender", False):
         overrides["link.lock_first_autopilot"] = False
     config = load_config(args.config, overrides)
-    if args.command in DEFAULT_VEHICLE:
+    command = getattr(args, "command", None)
+    if command in DEFAULT_VEHICLE:
         from fuser.publish import check_vehicle
 
         if config.vehicle is None:
-            config = config.replace(vehicle=DEFAULT_VEHICLE[args.command])
-        check_vehicle(config.vehicle, listening=args.command == "listen")
+            config = config.replace(vehicle=DEFAULT_VEHICLE[command])
+        check_vehicle(config.vehicle, listening=command == "listen")
     return config
 
 
