@@ -9,11 +9,25 @@ that means "off"):
   :class:`BiasSettings` as ``bias``, ...), one field of :class:`FuserConfig` each.
 
 Every name carries its unit. Each group validates its values when it is
-constructed (types, ranges, time constants > 0), whether it comes from a
-file or from code, and every error names the key, e.g.
-``fuser.accel.lowpass_s must be > 0 s, got 0``. The loader is generic: a new
-group is one more field of :class:`FuserConfig` whose default is a frozen
-dataclass; :class:`Settings` and :data:`Range` give it the same validation.
+constructed (types, ranges), whether it comes from a file or from code, and
+every error names the key, e.g. ``fuser.accel.lowpass_s must be >= 0.001 s,
+got 0``. The loader is generic: a new group is one more field of
+:class:`FuserConfig` whose default is a frozen dataclass; :class:`Settings`
+and :data:`Range` give it the same validation.
+
+Ranges are closed wherever the arithmetic needs it, and wide enough for any
+real sensor or vehicle (``tests/test_config_extremes.py`` replays a flight at
+both ends of each): durations and time constants 1 ms to a day (:data:`Seconds`),
+one-sigma angles 0.001-180 deg (:data:`Sigma`; a raw reading's direction
+noise 1e-5 to pi rad), gates at least one sigma (:data:`GateSigmas`), the
+loop 1 Hz to :data:`MAX_RATE_HZ`, waits and delays up to :data:`MAX_WAIT_MS`
+and 1 s. Noise densities and walks stop at 1 rad/s/sqrt(Hz), 100 rad/s/sqrt(s)
+(the rate's walk) and 1 rad/s/sqrt(s) (the bias's), a gap's assumed rate at
+100 rad/s and the bias's sigmas at 1 rad/s: far beyond any gyro (a MEMS
+gyro's noise is about 3e-4, its bias below 0.05 rad/s), where the squared
+concentrations still fit a float. Before, a sigma of 1e-300 or a noise of
+1e300 divided by zero inside the compiled tick, a loop of 1e9 Hz asked for
+51 GiB and a model error of 1e300 deg made every estimate NaN.
 """
 
 from __future__ import annotations
