@@ -123,7 +123,8 @@ class LinkSettings:
             raise ValueError(f"link.signing_key_file: a file name (or unset), got {self.signing_key_file!r}")
         rate = self.request_rate_hz
         if rate is not None and not (type(rate) in (int, float) and MIN_REQUEST_RATE_HZ <= rate <= MAX_REQUEST_RATE_HZ):  # nan fails
-            raise ValueError(f"link.request_rate_hz: a number of Hz from {MIN_REQUEST_RATE_HZ:g} to {MAX_REQUEST_RATE_HZ:g} (or unset), got {rate!r}")
+            raise ValueError(f"link.request_rate_hz: a number of Hz from {MIN_REQUEST_RATE_HZ:g} to {MAX_REQUEST_RATE_HZ:g} (or unset), "
+                             f"got {rate!r}")
         if not isinstance(self.dialect, str) or not _DIALECT_NAME.fullmatch(self.dialect) or (
             importlib.util.find_spec(f"pymavlink.dialects.v20.{self.dialect}") is None
         ):

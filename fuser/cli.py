@@ -206,7 +206,8 @@ def _add_sim(sub: Any) -> None:
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
                         + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()).replace("%", "%%"))  # argparse %-formats help
     p.add_argument("--duration", type=_seconds, metavar="S", help=f"seconds of flight with --scenario full (default: {SIM_DURATION_S:g})")
-    p.add_argument("--speed", type=argtypes.number(0, MAX_SPEED, " times real time"), metavar="X", help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
+    p.add_argument("--speed", type=argtypes.number(0, MAX_SPEED, " times real time"), metavar="X",
+                   help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
     p.add_argument("--transport", choices=("mavlink", "dronecan"), help="what the vehicle speaks (default: mavlink)")
     p.add_argument("--seed", type=argtypes.integer(0), default=0, help="simulation seed (default: 0)")
     p.add_argument("--imu-rate", type=argtypes.number(1, MAX_RATE_HZ, " Hz"), default=400.0, metavar="HZ", help="IMU rate (default: 400)")
@@ -219,7 +220,8 @@ def _add_sim(sub: Any) -> None:
     g.add_argument("--start-at", type=_start_at, metavar="UNIX_TIME|+S", help="send the first sample at this Unix time (keeps several senders "
                    "in step), or S seconds after the flight is ready (default: +0.2); the time chosen is printed")
     g.add_argument("--outage", type=_outage, metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
-    g.add_argument("--garbage", type=argtypes.number(0, MAX_GARBAGE_PER_S, " a second"), metavar="PER_S", help="fault: random bytes per second on MAVLink (frames per second on CAN)")
+    g.add_argument("--garbage", type=argtypes.number(0, MAX_GARBAGE_PER_S, " a second"), metavar="PER_S",
+                   help="fault: random bytes per second on MAVLink (frames per second on CAN)")
 
 
 def _add_run(sub: Any) -> None:
@@ -232,9 +234,11 @@ def _add_run(sub: Any) -> None:
     _link(p)
     g = p.add_argument_group("inputs")
     g.add_argument("--mavlink", action="append", default=[], type=mavlink_connection, metavar="CONN", help="MAVLink connection (repeatable)")
-    g.add_argument("--baud", type=argtypes.integer(1), metavar="BAUD", help=f"serial baud rate of the serial --mavlink connections (default: {DEFAULT_BAUD})")
+    g.add_argument("--baud", type=argtypes.integer(1), metavar="BAUD",
+                   help=f"serial baud rate of the serial --mavlink connections (default: {DEFAULT_BAUD})")
     g.add_argument("--can", action="append", default=[], type=_can_bus, metavar="IFACE:CHANNEL", help="CAN bus with DroneCAN nodes (repeatable)")
-    g.add_argument("--bitrate", type=argtypes.integer(1), help=f"CAN bitrate for interfaces that set one, e.g. slcan (default: {DEFAULT_BITRATE})")
+    g.add_argument("--bitrate", type=argtypes.integer(1),
+                   help=f"CAN bitrate for interfaces that set one, e.g. slcan (default: {DEFAULT_BITRATE})")
     g.add_argument("--request-rate", type=float, dest="request_rate_hz", metavar="HZ",
                    help="ask each MAVLink vehicle to stream its IMU and attitude at HZ (GNSS at most 10 Hz), as a ground "
                         "station does, repeated until they come (default: only listen; drivers/stream_request.py)")

@@ -278,7 +278,8 @@ def test_fixed_wing_without_jsbsim_is_one_clear_error(monkeypatch, capsys):
     assert "jsbsim" in err and "pip install" in err and "Traceback" not in err
 
 
-@pytest.mark.parametrize(("duration_s", "imu_rate_hz", "samples"), [(0.001, 400.0, "0.4"), (1e12, 400.0, "4e+14"), (240.0, 10_000.0, "2.4e+06")])
+@pytest.mark.parametrize(("duration_s", "imu_rate_hz", "samples"),
+                         [(0.001, 400.0, "0.4"), (1e12, 400.0, "4e+14"), (240.0, 10_000.0, "2.4e+06")])
 def test_a_flight_the_simulator_cannot_lay_out_is_refused_with_its_sample_count(duration_s, imu_rate_hz, samples):
     """Fewer than two IMU samples was an IndexError deep in the simulator; a day at 10 kHz a MemoryError (447 GiB)."""
     with pytest.raises(ValueError, match=rf"a flight of {re.escape(samples)} IMU samples: the simulator needs 2 at least"):
