@@ -179,6 +179,8 @@ GateSigmas = Annotated[float, Range(ge=1)]
 MAX_RATE_HZ = 2000.0
 """The fastest loop: twice the fastest IMU stream a MAVLink link or a DroneCAN bus carries (1 kHz); a faster loop
 gains nothing and its tick history (:func:`fuser.model.state.knot_capacity`) grows with the rate."""
+MAX_CONFIG_BYTES = 1024 * 1024
+"""The largest settings file read: a full one is about 5 kB (``--config /dev/zero`` read until memory ran out)."""
 MAX_WAIT_MS = 10_000.0
 """The longest a tick may wait for samples in flight: beyond it an estimate is too late for any consumer."""
 
@@ -735,7 +737,10 @@ def load_config(path: str | Path | None = None, overrides: Mapping[str, Any] | N
     try:
         if path is not None:
             with open(path, "rb") as f:
-                data = tomllib.load(f)  # a TOML syntax error is a ValueError too, named with the file below
+                text = f.read(MAX_CONFIG_BYTES + 1)
+            if len(text) > MAX_CONFIG_BYTES:
+                raise ValueError(f"more than {MAX_CONFIG_BYTES // 1024} KiB: not a settings file")
+            data = tomllib.loads(text.decode())  # a TOML syntax error, or bytes that are not UTF-8, is a ValueError too
             table = data.get("fuser", data)
             if not isinstance(table, dict):
                 raise ValueError(f"fuser must be a table of settings ([fuser]), got {table!r}")

@@ -250,6 +250,8 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "listen-rate": (["listen", "--rate", "5"], 2, ("listen does not take --rate 5",)),
     "report-rate-before-log": (["report", "--rate", "5", str(LOG)], 2, ("report does not take --rate (see",)),  # 5 was taken as the log
     "option-twice": (["listen", "--foo", "1", "--foo", "2"], 2, ("listen does not take --foo 1 --foo 2 (see",)),
+    "config-endless": (["replay", str(LOG), "-o", "out.mcap", "--config", "/dev/zero"], 2,
+                       ("bad configuration: /dev/zero: more than 1024 KiB: not a settings file",)),  # read until memory ran out
     "config-not-a-table": (["replay", str(LOG), "-o", "out.mcap", "--config", "scalar.toml"], 2,
                            ("bad configuration: scalar.toml: fuser must be a table of settings ([fuser]), got 3",)),
     "replay-vehicle": (["replay", str(LOG), "-o", "out.mcap", "--vehicle", "x"], 2, ("replay does not take --vehicle x",)),
