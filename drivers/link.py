@@ -38,6 +38,8 @@ __all__ = ["LinkSettings", "SIGNING_KEY_BYTES", "check_connection"]
 
 SIGNING_KEY_BYTES = 32
 """Length of a MAVLink 2 secret key (the SETUP_SIGNING message's ``secret_key``)."""
+MAX_KEY_FILE_BYTES = 4096
+"""The largest signing key file: a 32-byte key or a passphrase of a line or a few."""
 MAX_REQUEST_RATE_HZ = 1000.0
 """The fastest rate ``request_rate_hz`` may ask for (an IMU's; a MAVLink message interval is in whole microseconds)."""
 MIN_REQUEST_RATE_HZ = 0.1
@@ -148,17 +150,18 @@ class LinkSettings:
             return None
         try:
             with open(self.signing_key_file, "rb") as f:
-                data = f.read(4096)
+                data = f.read(MAX_KEY_FILE_BYTES + 1)
         except OSError as exc:
             raise SourceError(f"link.signing_key_file: cannot read {self.signing_key_file}: {exc.strerror}") from exc
         if len(data) == SIGNING_KEY_BYTES and not _is_text_line(data):
             return data
         try:
             passphrase = data.decode("utf-8").strip()
-        except UnicodeDecodeError as exc:
-            raise SourceError(
-                f"link.signing_key_file: {self.signing_key_file} is neither a 32-byte key nor a UTF-8 passphrase"
-            ) from exc
+        except UnicodeDecodeError:
+            passphrase = "\0"
+        if len(data) > MAX_KEY_FILE_BYTES or "\0" in passphrase:  # /dev/zero was a passphrase of 4,096 NULs, a long file cut
+            raise SourceError(f"link.signing_key_file: {self.signing_key_file} is neither a 32-byte key nor a UTF-8 passphrase "
+                              f"(of at most {MAX_KEY_FILE_BYTES} bytes, without NUL)")
         if not passphrase:
             raise SourceError(f"link.signing_key_file: {self.signing_key_file} is empty")
         return hashlib.sha256(passphrase.encode("utf-8")).digest()

@@ -199,7 +199,8 @@ def test_a_raw_key_ending_in_a_newline_byte_is_still_the_raw_key(tmp_path, key):
     assert times(signed_decoder(tmp_path, key).feed(frame(imu(7), key=key))) == [7]
 
 
-@pytest.mark.parametrize("content", [None, b"", b"\xff\xfe\x00bad utf-8 \xc3"])
+@pytest.mark.parametrize("content", [None, b"", b"\xff\xfe\x00bad utf-8 \xc3", bytes(4096), b"passphrase " * 500],
+                         ids=["missing", "empty", "not_utf8", "nuls", "too_long"])  # /dev/zero was a passphrase of 4,096 NULs
 def test_an_unusable_key_file_is_a_source_error_naming_the_setting(tmp_path, content):
     path = tmp_path / "key" if content is None else key_file(tmp_path, content)
     with pytest.raises(SourceError, match="link.signing_key_file"):
