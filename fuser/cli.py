@@ -409,6 +409,8 @@ def _check_output(path: str, option: str, reads: Iterable[tuple[str, str]] = ())
     target = Path(path)
     if target.is_dir():
         raise UsageError(f"cannot write {option} {path}: it is a folder; name a file (in it, or elsewhere)")
+    if target.exists() and not target.is_file():  # replay -o /dev/null renamed its MCAP over the device (as root)
+        raise UsageError(f"cannot write {option} {path}: it is not a regular file (a device, a pipe or a socket); name a file")
     for what, read in reads:
         if target.resolve() == Path(read).resolve() or (target.exists() and Path(read).exists() and os.path.samefile(target, read)):
             raise UsageError(f"cannot write {option} {path}: it is {what} {read}, which would be lost; name another file")

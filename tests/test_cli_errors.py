@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import socket
+import stat
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -315,6 +316,23 @@ def test_options_only_where_they_act(name: str, tmp_path: Path, monkeypatch: pyt
     if "--config" in argv:  # named once: "bad configuration in x.toml: x.toml: ..." said it twice
         assert err[0].count(argv[argv.index("--config") + 1]) == 1, err[0]
     assert {p.name for p in tmp_path.iterdir()} == before
+
+
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="named pipes are POSIX")
+@pytest.mark.parametrize("argv", [["replay", str(LOG), "-o", "out"], ["sim", "--scenario", "hover", "--speed", "0", "--no-zenoh", "-o", "out"],
+                                  ["import", "x.ulg", "-o", "out"]], ids=["replay", "sim", "import"])
+def test_an_output_that_is_a_pipe_or_a_device_is_refused_and_left_as_it_was(argv, tmp_path, monkeypatch, capsys) -> None:
+    """``replay LOG -o /dev/null`` renamed its finished MCAP over the device (as root, /dev/null became a file); a named
+    pipe shows it without harm: it was replaced by a regular file."""
+    from fuser.cli import main
+
+    monkeypatch.chdir(tmp_path)
+    os.mkfifo(tmp_path / "out")
+    (tmp_path / "x.ulg").write_bytes(b"")
+    assert main(argv) == 2
+    assert capsys.readouterr().err.strip() == f"bingham-fuser: cannot write {'--record' if argv[0] == 'sim' else '--output'} out: " \
+                                              "it is not a regular file (a device, a pipe or a socket); name a file"
+    assert stat.S_ISFIFO(os.stat(tmp_path / "out").st_mode)
 
 
 def test_version(capsys: pytest.CaptureFixture) -> None:
