@@ -37,10 +37,14 @@ class NotALogError(UsageError, ValueError):
 
 
 def log_file_problem(path: str | Path) -> str | None:
-    """What keeps ``path``, given as a log to read, from being read as one: a folder, or nothing there; None for a
-    file. Asked before anything opens it: pymavlink would take a missing .tlog for a serial port."""
+    """What keeps ``path``, given as a log to read, from being read as one: a folder, a device or pipe, or nothing
+    there; None for a file. Asked before anything opens it: pymavlink would take a missing .tlog for a serial port."""
     log = Path(path)
-    return None if log.is_file() else "a folder, not a log file" if log.is_dir() else "no such log file"
+    if log.is_file():
+        return None
+    if log.is_dir():
+        return "a folder, not a log file"
+    return "not a regular file (a device, a pipe or a socket), not a log file" if log.exists() else "no such log file"
 
 
 def check_log_file(path: str | Path, what: str = "") -> None:

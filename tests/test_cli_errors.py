@@ -246,6 +246,7 @@ IN_PROCESS: dict[str, tuple[list[str], int, tuple[str, ...]]] = {
     "import-a-folder": (["import", "adir", "-o", "x.mcap"], 2, ("import: a folder, not a log file: adir",)),
     "replay-a-folder": (["replay", "adir", "-o", "x.mcap"], 2, ("a folder, not a log file: adir",)),
     "report-a-folder": (["report", "adir", "-o", "rep"], 2, ("report: a folder, not a log file: adir",)),
+    "replay-a-device": (["replay", "/dev/zero", "-o", "x.mcap"], 2, ("not a regular file (a device, a pipe or a socket)", "/dev/zero")),
     "report-missing-log": (["report", "x.mcap", "-o", "rep"], 2, ("report: no such log file: x.mcap",)),
     "listen-no-zenoh": (["listen", "--no-zenoh"], 2, ("listen does not take --no-zenoh",)),
     "listen-rate": (["listen", "--rate", "5"], 2, ("listen does not take --rate 5",)),
