@@ -629,8 +629,9 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
 
     ``progress``: where to draw a progress bar (only if it is a terminal).
     """
+    from fuser.errors import FuserError
     from fuser.progress import progress_bar
-    from fuser.record import McapRecorder
+    from fuser.record import McapRecorder, RecordWriteError
 
     out = Path(out)
     encoder = MavlinkEncoder(system=1, component=1)
@@ -658,18 +659,22 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     skipped_before_encoding = Counter(skipped)
     counts = {ImuSample: 0, AttitudeSample: 0, GnssSample: 0}
     truth = 0
-    with McapRecorder(out, metadata=metadata) as rec:
-        events = _events(data)
-        decoded = _decoded(data, progress_bar(events, len(events), "import", " messages", progress), encoder, decoder, skipped)
-        for log_ns, what, _, record in heapq.merge(decoded, _truth(data)):  # one stream in log-time order: inputs first on ties
-            if what == _INPUT:
-                rec.write_sample(record, log_ns)  # type: ignore[arg-type]
-                counts[type(record)] += 1
-            else:
-                rec.write_truth(log_ns, record)  # type: ignore[arg-type]
-                truth += 1
-        if skipped != skipped_before_encoding:  # records the encoding left out too: the metadata again, complete (the last wins)
-            rec.add_metadata("bingham_fuser", metadata | {"skipped": _listed(skipped)})
+    try:
+        with McapRecorder(out, metadata=metadata, stop_on_write_error=True) as rec:
+            events = _events(data)
+            decoded = _decoded(data, progress_bar(events, len(events), "import", " messages", progress), encoder, decoder, skipped)
+            for log_ns, what, _, record in heapq.merge(decoded, _truth(data)):  # one stream in log-time order: inputs first on ties
+                if what == _INPUT:
+                    rec.write_sample(record, log_ns)  # type: ignore[arg-type]
+                    counts[type(record)] += 1
+                else:
+                    rec.write_truth(log_ns, record)  # type: ignore[arg-type]
+                    truth += 1
+            if skipped != skipped_before_encoding:  # records the encoding left out too: the metadata again, complete (the last wins)
+                rec.add_metadata("bingham_fuser", metadata | {"skipped": _listed(skipped)})
+    except RecordWriteError as e:  # a full disk: an incomplete import is no import
+        out.unlink(missing_ok=True)
+        raise FuserError(f"cannot write {out}: {e.reason}; nothing was kept") from e
     cfg = None
     if config_path is not None:
         cfg = Path(config_path)

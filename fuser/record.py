@@ -11,6 +11,7 @@ process so that the fusion loop never waits for, nor dies with, the disk.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import multiprocessing as mp
@@ -31,6 +32,7 @@ from mcap.writer import CompressionType, Writer
 from drivers.samples import Quat, Sample
 
 from .codec import Estimate, decode_sample, dumps, loads, sample_channel, sample_json
+from .errors import FuserError
 from .frames import BODY_FRAME, TRUTH_OFFSET_NED_M, body_transforms
 from .mcap_scan import McapStream, NotAnMcapError, RawMessage, Skipped, scan_mcap
 
@@ -227,6 +229,20 @@ def frame_transforms(t_ns: int, child_frame: str, q_wxyz: Quat, translation_ned_
     ]}
 
 
+class RecordWriteError(FuserError):
+    """The recording's file ``path`` cannot be written: ``reason`` (a full disk, an I/O error); ``kept`` says what it
+    holds, if anything."""
+
+    def __init__(self, path: Path, reason: str, kept: str = "") -> None:
+        super().__init__(f"cannot write {path}: {reason}{kept}")
+        self.path, self.reason = path, reason
+
+
+def _reason(exc: BaseException) -> str:
+    """An OS error's own words (``No space left on device``), else the exception's type and text."""
+    return exc.strerror if isinstance(exc, OSError) and exc.strerror else f"{type(exc).__name__}: {exc}"
+
+
 class _ChunkOutput:
     """The file as the mcap ``Writer`` sees it; ``wrote`` turns True when it hands over data.
 
@@ -258,10 +274,17 @@ class McapRecorder:
     NaN) is checked for before it reaches the writer, so it cannot leave half a
     record in a chunk: it is not written, it is counted in ``rejected`` by
     reason, the first one is logged, and recording goes on. So is a write the
-    writer fails (``write_failed``).
+    writer fails (``write_failed``), unless ``stop_on_write_error``: then it
+    raises :class:`RecordWriteError`, for a file that is the command's whole
+    product (a replay's, an import's), which a full disk would leave
+    incomplete at every later chunk. Finishing the file (:meth:`close`) raises
+    it in every case, naming the file.
     """
 
-    def __init__(self, path: str | Path, chunk_size: int = 64 * 1024, metadata: dict[str, str] | None = None) -> None:
+    def __init__(self, path: str | Path, chunk_size: int = 64 * 1024, metadata: dict[str, str] | None = None,
+                 stop_on_write_error: bool = False) -> None:
+        self.path = Path(path)
+        self._stop_on_write_error = stop_on_write_error
         self._file = open(path, "wb")
         self._output = _ChunkOutput(self._file)
         self._writer = Writer(self._output, chunk_size=chunk_size, compression=CompressionType.ZSTD, enable_data_crcs=True)  # type: ignore[arg-type]
@@ -316,14 +339,17 @@ class McapRecorder:
         seq = self._sequence[topic] + 1
         try:
             self._writer.add_message(self._channels[topic], times[0], data, times[1], seq)
+            chunk_closed, self._output.wrote = self._output.wrote, False
+            if chunk_closed:  # the chunk just closed goes to the OS at once
+                self._file.flush()
         except Exception as e:  # noqa: BLE001 - a disk or writer failure costs this record, not the recording
+            if self._stop_on_write_error:
+                raise RecordWriteError(self.path, _reason(e)) from e
             self._reject(topic, "write_failed", f"{type(e).__name__}: {e}")
             return False
         self._sequence[topic] = seq
         self._count += 1
-        if self._output.wrote:  # the chunk just closed goes to the OS at once
-            self._output.wrote = False
-            self._file.flush()
+        if chunk_closed:
             self.records_on_disk = self._count
         return True
 
@@ -387,8 +413,12 @@ class McapRecorder:
         self.closed = True
         try:
             self._writer.finish()
-        finally:
             self._file.close()
+        except OSError as e:  # a full disk: what is on it stays readable up to its last complete chunk (read_log)
+            with contextlib.suppress(OSError):
+                self._file.close()
+            raise RecordWriteError(self.path, _reason(e), f"; it holds at least the {self.records_on_disk:,} records written before "
+                                   "(up to its last complete chunk)") from e
         self.records_on_disk = self._count
 
     def __enter__(self) -> McapRecorder:

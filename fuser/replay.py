@@ -41,7 +41,7 @@ from fuser.importers import import_log, is_importable
 from fuser.inputs import InputReport, TlogInputs
 from fuser.mcap_scan import RawMessage, Skipped
 from fuser.progress import progress_bar
-from fuser.record import INPUT_TOPICS, LogStream, McapRecorder
+from fuser.record import INPUT_TOPICS, LogStream, McapRecorder, RecordWriteError
 
 if TYPE_CHECKING:
     from fuser.pipeline import Pipeline
@@ -299,7 +299,7 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
     samples = 0
     provenance = {} if overview is None else overview.metadata.get("bingham_fuser", {})  # reference, source, attribution
     try:
-        with McapRecorder(partial, metadata={**provenance, "source_log": source_name}) as recorder:
+        with McapRecorder(partial, metadata={**provenance, "source_log": source_name}, stop_on_write_error=True) as recorder:
             copied = _CopiedInOrder(recorder, log_reader)
 
             def write_estimate(est: Estimate) -> None:
@@ -328,6 +328,9 @@ def _replay(log: Path, out: Path, config: FuserConfig, progress: TextIO | None, 
             refused = "" if tlog is None else "; not used: " + (", ".join(f"{k}={v:,}" for k, v in tlog.report().refused.items()) or "nothing")
             raise ReplayError(f"nothing to replay in {log}: no IMU, magnetometer, attitude or GNSS message could be decoded{refused}")
         os.replace(partial, out)
+    except RecordWriteError as e:  # a full disk: stop at once, by the output's own name
+        partial.unlink(missing_ok=True)
+        raise ReplayError(f"cannot write {out}: {e.reason}; nothing was kept") from e
     except BaseException:
         partial.unlink(missing_ok=True)
         raise
