@@ -608,6 +608,9 @@ def _check_recorder(rec: Any, path: str) -> None:
     """A recorder process that died during the run has lost what came after (estimates, inputs, status): the command
     failed (exit 1), whatever else it did. Called once the recorder is closed (``close`` then says how it ended)."""
     if not rec.close():
+        if rec.write_failed:
+            raise FuserError(f"cannot write {path}: its disk refused a write (full, or an I/O error; the recorder's line above "
+                             "says which); it holds what was written before, up to its last complete chunk")
         raise FuserError(f"the recorder process died during the run: {path} holds only what it had written (up to its "
                          f"last complete chunk); {rec.dropped} writes after it were dropped")
 

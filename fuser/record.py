@@ -229,6 +229,10 @@ def frame_transforms(t_ns: int, child_frame: str, q_wxyz: Quat, translation_ned_
     ]}
 
 
+WRITE_FAILED_EXIT = 3
+"""The recorder process's exit code when its file could not be written (:class:`RecordWriteError`)."""
+
+
 class RecordWriteError(FuserError):
     """The recording's file ``path`` cannot be written: ``reason`` (a full disk, an I/O error); ``kept`` says what it
     holds, if anything."""
@@ -301,7 +305,12 @@ class McapRecorder:
             self._channels[topic] = self._writer.register_channel(topic, "json", schema_ids[name])
             self._sequence[topic] = 0
         self._count = 0
-        self._file.flush()
+        try:
+            self._file.flush()
+        except OSError as e:  # a disk already full: no record can follow
+            with contextlib.suppress(OSError):
+                self._file.close()
+            raise RecordWriteError(self.path, _reason(e)) from e
         self._output.wrote = False
         self.records_on_disk = 0
         self.rejected: Counter[str] = Counter()
@@ -438,25 +447,29 @@ def _record_child(
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C goes to the parent, which closes us cleanly
     failed = 0
-    with McapRecorder(path, chunk_size, metadata) as rec:
-        while True:
-            try:
-                item = q.get(timeout=0.5)
-            except queue.Empty:
-                if os.getppid() != parent:
+    try:
+        with McapRecorder(path, chunk_size, metadata) as rec:
+            while True:
+                try:
+                    item = q.get(timeout=0.5)
+                except queue.Empty:
+                    if os.getppid() != parent:
+                        break
+                    continue
+                if item is None:
                     break
-                continue
-            if item is None:
-                break
-            method, args = item
-            try:
-                getattr(rec, method)(*args)
-            except Exception as e:  # noqa: BLE001 - the recorder must outlive any one record
-                failed += 1
-                if failed == 1:
-                    log.warning("recorder: %s failed (%s: %s); recording goes on", method, type(e).__name__, e)
-            on_disk.value = rec.records_on_disk
-            rejected.value = rec.rejected_total + failed
+                method, args = item
+                try:
+                    getattr(rec, method)(*args)
+                except Exception as e:  # noqa: BLE001 - the recorder must outlive any one record
+                    failed += 1
+                    if failed == 1:
+                        log.warning("recorder: %s failed (%s: %s); recording goes on", method, type(e).__name__, e)
+                on_disk.value = rec.records_on_disk
+                rejected.value = rec.rejected_total + failed
+    except RecordWriteError as e:  # the file could not be finished (a full disk): one line, and the exit code says why
+        log.error("recorder: %s", e)
+        raise SystemExit(WRITE_FAILED_EXIT) from None
     on_disk.value = rec.records_on_disk
 
 
@@ -534,6 +547,11 @@ class RecorderProcess:
     def write_status(self, t_ns: int, status: dict[str, Any]) -> None:
         self._put("write_status", t_ns, status)
 
+    @property
+    def write_failed(self) -> bool:
+        """True once the child has ended because its file could not be written (a full disk, an I/O error)."""
+        return self._proc.exitcode == WRITE_FAILED_EXIT
+
     def close(self, timeout: float = 30.0) -> bool:
         """Let the child write what is queued and the footer, then join it.
 
@@ -553,7 +571,9 @@ class RecorderProcess:
             self._proc.terminate()
             self._proc.join()
         clean = self._proc.exitcode == 0
-        if not clean:
+        if self.write_failed:
+            self._queue.cancel_join_thread()
+        elif not clean:
             log.error("recorder process died (exit code %s); %d writes dropped", self._proc.exitcode, self.dropped)
             self._queue.cancel_join_thread()  # nobody will read what is left in the pipe
         self._queue.close()

@@ -76,3 +76,15 @@ def test_an_import_onto_a_full_disk_leaves_no_truncated_mcap(full_disk, tmp_path
     with pytest.raises(FuserError, match=rf"^cannot write {tmp_path / 'flight.mcap'}: No space left on device; nothing was kept$"):
         import_log(log.path, tmp_path / "flight.mcap")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.BIN"]
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="/dev/full (every write: ENOSPC) is Linux's")
+def test_a_recorder_process_on_a_full_disk_says_so_not_that_it_died(tmp_path):
+    """The live recorder (a child process) ended with a traceback and the run said "the recorder process died"; now
+    it logs one line and its exit code tells the run why (``write_failed``)."""
+    from fuser.record import RecorderProcess
+
+    rec = RecorderProcess("/dev/full")
+    for sample, receive_ns in read_log(LOG).inputs()[:100]:
+        rec.write_sample(sample, receive_ns)
+    assert rec.close() is False and rec.write_failed
