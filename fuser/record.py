@@ -421,11 +421,11 @@ class McapRecorder:
             return
         self.closed = True
         try:
-            self._writer.finish()
-            self._file.close()
+            try:
+                self._writer.finish()
+            finally:
+                self._file.close()  # closed even when its last flush fails
         except OSError as e:  # a full disk: what is on it stays readable up to its last complete chunk (read_log)
-            with contextlib.suppress(OSError):
-                self._file.close()
             raise RecordWriteError(self.path, _reason(e), f"; it holds at least the {self.records_on_disk:,} records written before "
                                    "(up to its last complete chunk)") from e
         self.records_on_disk = self._count
