@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 from numpy.typing import NDArray
@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample, Quat
 from fuser.codec import Estimate, decode_sample, loads
-from fuser.errors import UsageError
+from fuser.errors import FuserError, UsageError
 from fuser.evaluate import REGIONS, AttitudeErrors, attitude_errors
 from fuser.frames import orientation_covariance_ned
 from fuser.record import LogContents, LogStream, _quat_wxyz, read_log
@@ -447,7 +447,7 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
     ax[-1].set_xlabel("time [s]")
     fig.suptitle(f"{title}: attitude (ZYX Euler)")
     fig.tight_layout()
-    fig.savefig(out_dir / "attitude.png", dpi=100)
+    _write(out_dir / "attitude.png", lambda file: fig.savefig(file, dpi=100))
     plt.close(fig)
 
     # error: per component with its RMS, and the actual error against the reported uncertainty
@@ -476,7 +476,7 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
         a.set_ylim(bottom=0)
     fig.suptitle(f"{title}: error")
     fig.tight_layout()
-    fig.savefig(out_dir / "error.png", dpi=100)
+    _write(out_dir / "error.png", lambda file: fig.savefig(file, dpi=100))
     plt.close(fig)
 
     # counters: every rejection and gap counter over time (cumulative)
@@ -496,15 +496,26 @@ def write_report(path: str | Path, out_dir: Path, since_s: float = CONVERGENCE_S
     ax.set_title(f"{title}: counters ({final.get('ticks', 0)} ticks, {final.get('samples', 0)} samples)", fontsize=10)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(out_dir / "counters.png", dpi=100)
+    _write(out_dir / "counters.png", lambda file: fig.savefig(file, dpi=100))
     plt.close(fig)
 
     circular = _circular(contents, ref)
     coverage = err.coverage(since_s)
     lines = _score_lines(ref, rms, since_s, coverage) + ([circular] if circular else [])
-    (out_dir / "summary.md").write_text(_summary(Path(path).name, ref, err, rms, coverage, since_s, final)
-                                        + (f"\n**Note:** {circular.removeprefix('note: ')}.\n" if circular else ""))
+    summary = _summary(Path(path).name, ref, err, rms, coverage, since_s, final) + (
+        f"\n**Note:** {circular.removeprefix('note: ')}.\n" if circular else "")
+    _write(out_dir / "summary.md", lambda file: file.write_text(summary))
     return lines + [f"report: {out_dir / 'summary.md'}, attitude.png, error.png, counters.png"]
+
+
+def _write(file: Path, write: Callable[[Path], object]) -> None:
+    """``write(file)``; a file the disk cannot hold (full, read-only) is removed and named in one error (a full disk left
+    a truncated attitude.png and said only "No space left on device")."""
+    try:
+        write(file)
+    except OSError as e:
+        file.unlink(missing_ok=True)
+        raise FuserError(f"report: cannot write {file}: {e.strerror or e}") from e
 
 
 def _summary(log_name: str, ref: Reference, err: AttitudeErrors, rms: dict[str, float], coverage: dict[float, float],

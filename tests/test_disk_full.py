@@ -88,3 +88,22 @@ def test_a_recorder_process_on_a_full_disk_says_so_not_that_it_died(tmp_path):
     for sample, receive_ns in read_log(LOG).inputs()[:100]:
         rec.write_sample(sample, receive_ns)
     assert rec.close() is False and rec.write_failed
+
+
+def test_a_report_onto_a_full_disk_names_the_file_and_leaves_no_truncated_plot(tmp_path, monkeypatch):
+    """It said only "No space left on device" and left a truncated attitude.png."""
+    pytest.importorskip("matplotlib")
+    from matplotlib.figure import Figure
+
+    from fuser.errors import FuserError
+    from fuser.report import write_report
+
+    def fills_the_disk(self, file, **kwargs) -> None:
+        Path(file).write_bytes(b"\x89PNG" + bytes(1000))
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Figure, "savefig", fills_the_disk)
+    out = tmp_path / "rep"
+    with pytest.raises(FuserError, match=rf"^report: cannot write {out / 'attitude.png'}: No space left on device$"):
+        write_report(LOG, out)
+    assert list(out.iterdir()) == []
