@@ -678,10 +678,15 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
     cfg = None
     if config_path is not None:
         cfg = Path(config_path)
-        cfg.write_text(
-            f"# reference field for {out.name}, measured by bingham-fuser import (see fuser/importers.py)\n"
-            f"[fuser.mag]\nfield_ned_gauss = [{field_ned[0]}, {field_ned[1]}, {field_ned[2]}]\n"
-        )
+        try:
+            cfg.write_text(
+                f"# reference field for {out.name}, measured by bingham-fuser import (see fuser/importers.py)\n"
+                f"[fuser.mag]\nfield_ned_gauss = [{field_ned[0]}, {field_ned[1]}, {field_ned[2]}]\n"
+            )
+        except OSError as e:  # a full disk: the MCAP is whole, its settings file is not
+            cfg.unlink(missing_ok=True)
+            raise FuserError(f"cannot write {cfg}: {e.strerror or e}; {out} was written, its reference field is "
+                             f"{list(field_ned)} (mag_field_ned_gauss in its metadata)") from e
     return ImportSummary(out, counts[ImuSample], counts[AttitudeSample], truth, dict(decoder.stats), field_ned, cfg,  # type: ignore[arg-type]
                          counts[GnssSample], dict(skipped))
 

@@ -107,3 +107,23 @@ def test_a_report_onto_a_full_disk_names_the_file_and_leaves_no_truncated_plot(t
     with pytest.raises(FuserError, match=rf"^report: cannot write {out / 'attitude.png'}: No space left on device$"):
         write_report(LOG, out)
     assert list(out.iterdir()) == []
+
+
+def test_an_import_whose_settings_file_cannot_be_written_says_what_was(tmp_path, monkeypatch):
+    from test_import_dataflash import write_new_log
+
+    from fuser.errors import FuserError
+    from fuser.importers import import_log
+
+    log = write_new_log(tmp_path / "flight.BIN")
+
+    def fills_the_disk(self, text, *args, **kwargs) -> None:
+        self.write_bytes(text.encode()[:10])
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(Path, "write_text", fills_the_disk)
+    with pytest.raises(FuserError, match=rf"^cannot write {tmp_path / 'flight.toml'}: No space left on device; "
+                                         rf"{tmp_path / 'flight.mcap'} was written, its reference field is \["):
+        import_log(log.path, tmp_path / "flight.mcap", config_path=tmp_path / "flight.toml")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flight.BIN", "flight.mcap"]
+    assert read_log(tmp_path / "flight.mcap").complete
