@@ -12,8 +12,11 @@ and endpoints.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import logging
+import os
 import queue
 import re
 import sys
@@ -283,6 +286,13 @@ POLL_S = 0.5
 """How often ``listen`` looks for ignored payloads to tell of while no estimate arrives (s)."""
 
 
+def _let_go(out: TextIO) -> None:
+    """Point ``out``'s descriptor at the null device: its reader is gone, and the interpreter's last flush of it would
+    fail again ("Exception ignored ... BrokenPipeError"), as Python's documentation on SIGPIPE advises."""
+    with contextlib.suppress(OSError, ValueError, io.UnsupportedOperation):
+        os.dup2(os.open(os.devnull, os.O_WRONLY), out.fileno())
+
+
 def listen(
     config: zenoh.Config, vehicle: str, json_output: bool = False, count: int | None = None, out: TextIO = sys.stdout,
     err: TextIO = sys.stderr,
@@ -324,7 +334,11 @@ def listen(
                 line = payload.decode() if json_output else format_estimate(estimate)
                 if "*" in vehicle and not json_output:
                     line = f"{name}: {line}"
-                print(line, file=out, flush=True)
+                try:
+                    print(line, file=out, flush=True)
+                except BrokenPipeError:  # its reader stopped (listen | head): the end, as --count's
+                    _let_go(out)
+                    break
                 printed += 1
         except KeyboardInterrupt:
             pass

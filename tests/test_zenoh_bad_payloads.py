@@ -211,3 +211,21 @@ def test_the_example_subscriber_skips_what_is_not_an_estimate(endpoints) -> None
     said = err.splitlines()
     assert len(said) == len(unreadable) == 5, said
     assert all(line.startswith("skipped a payload on bingham_fuser/evil/attitude that is not an estimate") for line in said), said
+
+
+def test_listen_into_a_reader_that_stops_ends_quietly(endpoints) -> None:
+    """``listen | head -2`` ended "bingham-fuser: Broken pipe", exit 1 (a pipeline under ``set -o pipefail`` failed):
+    a reader that stops is the end, as ``--count``'s."""
+    _, stranger, connect = endpoints
+    proc = subprocess.Popen([sys.executable, "-m", "fuser.cli", "listen", "--zenoh-connect", connect[1]], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parent.parent)
+    stranger.put("attitude", GOOD.to_json())  # once the listener is subscribed
+    assert proc.stdout.readline().startswith("evil: ")
+    proc.stdout.close()  # the reader stops
+    deadline = time.monotonic() + 20
+    while proc.poll() is None and time.monotonic() < deadline:
+        stranger.put("attitude", GOOD.to_json())
+        time.sleep(0.05)
+    assert proc.wait(5) == 0
+    err = proc.stderr.read()
+    assert "Broken pipe" not in err and "Traceback" not in err and "Exception ignored" not in err, err
