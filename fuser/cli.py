@@ -876,12 +876,39 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError as exc:
+        if not _stdout_gone():  # a socket's (a TCP link), not the reader of what the command prints
+            return _failed(exc, verbose)
+        return 0  # its reader stopped (replay ... | head -1): the command had done its work, printing is what ended
     except Exception as exc:  # noqa: BLE001 - the one place every failure becomes one line and an exit code
-        code, line = _explain(exc)
-        if verbose:
-            traceback.print_exc()
-        print(f"{PROG}: {line}", file=sys.stderr)
-        return code
+        return _failed(exc, verbose)
+
+
+def _failed(exc: BaseException, verbose: int) -> int:
+    """The one line on stderr (and, with ``-v``, the traceback) of a failure; its exit code."""
+    code, line = _explain(exc)
+    if verbose:
+        traceback.print_exc()
+    print(f"{PROG}: {line}", file=sys.stderr)
+    return code
+
+
+def _stdout_gone() -> bool:
+    """True if standard output is a pipe whose reader has gone (``poll`` reports an error on it; where there is no
+    ``poll``, False); it is then pointed at the null device."""
+    import select
+
+    from fuser.publish import let_go
+
+    try:
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        gone = any(events & select.POLLERR for _, events in poller.poll(0))
+    except (AttributeError, OSError, ValueError):  # no poll (Windows), or no descriptor (a test's captured output)
+        return False
+    if gone:
+        let_go(sys.stdout)
+    return gone
 
 
 if __name__ == "__main__":

@@ -286,7 +286,7 @@ POLL_S = 0.5
 """How often ``listen`` looks for ignored payloads to tell of while no estimate arrives (s)."""
 
 
-def _let_go(out: TextIO) -> None:
+def let_go(out: TextIO) -> None:
     """Point ``out``'s descriptor at the null device: its reader is gone, and the interpreter's last flush of it would
     fail again ("Exception ignored ... BrokenPipeError"), as Python's documentation on SIGPIPE advises."""
     with contextlib.suppress(OSError, ValueError, io.UnsupportedOperation):
@@ -337,7 +337,7 @@ def listen(
                 try:
                     print(line, file=out, flush=True)
                 except BrokenPipeError:  # its reader stopped (listen | head): the end, as --count's
-                    _let_go(out)
+                    let_go(out)
                     break
                 printed += 1
         except KeyboardInterrupt:

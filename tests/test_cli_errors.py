@@ -336,6 +336,20 @@ def test_an_output_that_is_a_pipe_or_a_device_is_refused_and_left_as_it_was(argv
     assert stat.S_ISFIFO(os.stat(tmp_path / "out").st_mode)
 
 
+def test_a_reader_that_stops_reading_ends_the_printing_not_the_command(tmp_path) -> None:
+    """``replay LOG -o out.mcap | head -1`` wrote its output and then said "bingham-fuser: Broken pipe", exit 1 (what a
+    pipeline under ``set -o pipefail`` takes for a failure); here the reader has gone before anything is printed."""
+    proc = subprocess.Popen([sys.executable, "-m", "fuser.cli", "replay", str(LOG), "-o", str(tmp_path / "out.mcap")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    proc.stdout.close()
+    assert proc.wait(120) == 0
+    err = proc.stderr.read()
+    assert "Broken pipe" not in err and "Traceback" not in err and "Exception ignored" not in err, err
+    from fuser.record import read_log
+
+    assert read_log(tmp_path / "out.mcap").complete
+
+
 def test_version(capsys: pytest.CaptureFixture) -> None:
     from importlib.metadata import version
 
