@@ -104,9 +104,9 @@ class Stranger:
         self._publishers = {leaf: self._session.declare_publisher(f"bingham_fuser/evil/{leaf}", congestion_control=zenoh.CongestionControl.BLOCK)
                             for leaf in ("attitude", "status")}
 
-    def put(self, leaf: str, payload: bytes) -> None:
-        """Once a subscriber matches the key (a put before that reaches nobody)."""
-        wait_for(lambda: self._publishers[leaf].matching_status.matching, what=f"a subscriber to {leaf}")
+    def put(self, leaf: str, payload: bytes, timeout: float = 10.0) -> None:
+        """Once a subscriber matches the key (a put before that reaches nobody), waiting ``timeout`` seconds at most."""
+        wait_for(lambda: self._publishers[leaf].matching_status.matching, timeout, f"a subscriber to {leaf}")
         self._publishers[leaf].put(payload)
 
     def close(self) -> None:
@@ -219,7 +219,7 @@ def test_listen_into_a_reader_that_stops_ends_quietly(endpoints) -> None:
     _, stranger, connect = endpoints
     proc = subprocess.Popen([sys.executable, "-m", "fuser.cli", "listen", "--zenoh-connect", connect[1]], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=Path(__file__).resolve().parent.parent)
-    stranger.put("attitude", GOOD.to_json())  # once the listener is subscribed
+    stranger.put("attitude", GOOD.to_json(), timeout=120)  # once the listener is subscribed: a new interpreter, slow under load
     assert proc.stdout.readline().startswith("evil: ")
     proc.stdout.close()  # the reader stops
     deadline = time.monotonic() + 20
