@@ -27,7 +27,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
-import math
 import os
 import re
 import signal
@@ -47,6 +46,7 @@ from fuser.config import FuserConfig, load_config
 from fuser.errors import EXIT_RUNTIME, EXIT_USAGE, FuserError, UsageError, check_log_file, require_package
 from fuser.outputs import add_options as add_output_options
 from fuser.outputs import mavlink_connection
+from fuser.streams import stdout_gone
 
 __all__ = ["main"]
 
@@ -102,39 +102,6 @@ def _can_bus(text: str) -> str:
         raise argparse.ArgumentTypeError(f"{text!r}: expected INTERFACE:CHANNEL, e.g. socketcan:can0 or slcan:/dev/ttyACM0")
     if interface not in can.VALID_INTERFACES:
         raise argparse.ArgumentTypeError(f"unknown CAN interface {interface!r}: python-can knows {', '.join(sorted(can.VALID_INTERFACES))}")
-    return text
-
-
-def _seconds(text: str, positive: bool = True) -> float:
-    """argparse type of a number of seconds: finite, and > 0 if ``positive`` (a ``--duration``: nan or inf would run
-    forever, 0 or less stop at once) else >= 0 (``import --start``)."""
-    try:
-        seconds = float(text)
-    except ValueError:
-        seconds = math.nan
-    if not math.isfinite(seconds) or seconds < 0 or (positive and seconds == 0):
-        raise argparse.ArgumentTypeError(f"expected a finite number of seconds {'>' if positive else '>='} 0, got {text!r}")
-    return seconds
-
-
-def _outage(text: str) -> tuple[float, float]:
-    at, _, seconds = text.partition(":")
-    try:
-        out = float(at), float(seconds)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected AT:SECONDS, e.g. 4:2.5") from None
-    if not all(map(math.isfinite, out)) or out[0] < 0 or out[1] <= 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: AT must be >= 0 and SECONDS > 0")
-    return out
-
-
-def _start_at(text: str) -> str:
-    try:
-        when = float(text[1:] if text.startswith("+") else text)
-    except ValueError:
-        when = math.nan
-    if not math.isfinite(when) or when < 0:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected a Unix time or +SECONDS")
     return text
 
 
@@ -205,7 +172,7 @@ def _add_sim(sub: Any) -> None:
     p.add_argument("--scenario", choices=("full",) + tuple(SCENARIOS), default="full",
                    help="full: the whole programme for --duration (hover, turns, aggressive, a flip); "
                         + "; ".join(f"{k}: {v}" for k, v in SCENARIOS.items()).replace("%", "%%"))  # argparse %-formats help
-    p.add_argument("--duration", type=_seconds, metavar="S", help=f"seconds of flight with --scenario full (default: {SIM_DURATION_S:g})")
+    p.add_argument("--duration", type=argtypes.seconds, metavar="S", help=f"seconds of flight with --scenario full (default: {SIM_DURATION_S:g})")
     p.add_argument("--speed", type=argtypes.number(0, MAX_SPEED, " times real time"), metavar="X",
                    help="1 = real time, 10 = ten times faster, 0 = as fast as possible (default: 1)")
     p.add_argument("--transport", choices=("mavlink", "dronecan"), help="what the vehicle speaks (default: mavlink)")
@@ -217,9 +184,9 @@ def _add_sim(sub: Any) -> None:
     g.add_argument("--send", metavar="CONN", help="send the flight's MAVLink in real time to this pymavlink connection, e.g. udpout:127.0.0.1:14550")
     g.add_argument("--send-can", type=_can_bus, metavar="IFACE:CHANNEL", help="send its DroneCAN frames to this python-can bus")
     g.add_argument("--truth", metavar="FILE", help="write the true attitude at the sender's times (.npz or .mcap)")
-    g.add_argument("--start-at", type=_start_at, metavar="UNIX_TIME|+S", help="send the first sample at this Unix time (keeps several senders "
+    g.add_argument("--start-at", type=argtypes.start_time, metavar="UNIX_TIME|+S", help="send the first sample at this Unix time (keeps several senders "
                    "in step), or S seconds after the flight is ready (default: +0.2); the time chosen is printed")
-    g.add_argument("--outage", type=_outage, metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
+    g.add_argument("--outage", type=argtypes.outage, metavar="AT:SECONDS", help="fault: send nothing for SECONDS from AT seconds into the flight")
     g.add_argument("--garbage", type=argtypes.number(0, MAX_GARBAGE_PER_S, " a second"), metavar="PER_S",
                    help="fault: random bytes per second on MAVLink (frames per second on CAN)")
 
@@ -243,7 +210,7 @@ def _add_run(sub: Any) -> None:
                    help="ask each MAVLink vehicle to stream its IMU and attitude at HZ (GNSS at most 10 Hz), as a ground "
                         "station does, repeated until they come (default: only listen; drivers/stream_request.py)")
     p.add_argument("--attitude-sigma", type=float, dest="attitude_sigma_deg", metavar="DEG", help="also fuse the autopilot's attitude with this noise")
-    p.add_argument("--duration", type=_seconds, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--duration", type=argtypes.seconds, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
     p.add_argument("-o", "--record", metavar="FILE.mcap", help="record inputs and estimates (in a separate process); "
                    "an existing file is kept unless --overwrite is given")
     p.add_argument("--overwrite", action="store_true", help="let --record replace an existing file")
@@ -275,8 +242,8 @@ def _add_import(sub: Any) -> None:
     p.add_argument("source", help="BROAD trial .hdf5, PX4 .ulg or ArduPilot .bin")
     p.add_argument("-o", "--output", required=True, metavar="OUT.mcap", help="MCAP to write")
     p.add_argument("--format", choices=("broad", "px4", "dataflash"), help="input format (default: from the file extension)")
-    p.add_argument("--start", type=partial(_seconds, positive=False), default=0.0, metavar="S", help="skip the first S seconds (default: 0)")
-    p.add_argument("--duration", type=_seconds, metavar="S", help="keep only S seconds (default: all)")
+    p.add_argument("--start", type=partial(argtypes.seconds, positive=False), default=0.0, metavar="S", help="skip the first S seconds (default: 0)")
+    p.add_argument("--duration", type=argtypes.seconds, metavar="S", help="keep only S seconds (default: all)")
     p.add_argument("--config-out", metavar="FILE.toml", help="TOML with the measured reference field, for replay --config "
                    "(default: OUT.toml beside the MCAP; '' to skip)")
 
@@ -401,11 +368,11 @@ def _read_files(args: argparse.Namespace) -> list[tuple[str, str]]:
 
 
 def _check_output(path: str, option: str, reads: Iterable[tuple[str, str]] = ()) -> None:
-    """A file can be written at ``path``: not a folder nor a read-only file, in a folder that exists and is writable,
-    and none of the files the command reads (``reads``, :func:`_read_files`): a replay or an import would replace its
-    own input (``replay hover.mcap -o hover.mcap`` left its output where the log had been; a .BIN or a .tlog goes the
-    same way, by the same rename). Checked before the
-    command starts, so it fails at once with one line (a recorder process would die on it)."""
+    """A file can be written at ``path``: a regular file or nothing yet (not a folder, a device, a pipe, nor read-only),
+    in a folder that exists and is writable, and none of the files the command reads (``reads``, :func:`_read_files`):
+    a replay or an import would replace its own input (``replay hover.mcap -o hover.mcap`` left its output where the
+    log had been; a .BIN or a .tlog goes the same way, by the same rename). Checked before the command starts, so it
+    fails at once with one line (a recorder process would die on it)."""
     target = Path(path)
     if target.is_dir():
         raise UsageError(f"cannot write {option} {path}: it is a folder; name a file (in it, or elsewhere)")
@@ -877,7 +844,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{PROG}: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
     except BrokenPipeError as exc:
-        if not _stdout_gone():  # a socket's (a TCP link), not the reader of what the command prints
+        if not stdout_gone():  # a socket's (a TCP link), not the reader of what the command prints
             return _failed(exc, verbose)
         return 0  # its reader stopped (replay ... | head -1): the command had done its work, printing is what ended
     except Exception as exc:  # noqa: BLE001 - the one place every failure becomes one line and an exit code
@@ -891,24 +858,6 @@ def _failed(exc: BaseException, verbose: int) -> int:
         traceback.print_exc()
     print(f"{PROG}: {line}", file=sys.stderr)
     return code
-
-
-def _stdout_gone() -> bool:
-    """True if standard output is a pipe whose reader has gone (``poll`` reports an error on it; where there is no
-    ``poll``, False); it is then pointed at the null device."""
-    import select
-
-    from fuser.publish import let_go
-
-    try:
-        poller = select.poll()
-        poller.register(sys.stdout.fileno(), select.POLLOUT)
-        gone = any(events & select.POLLERR for _, events in poller.poll(0))
-    except (AttributeError, OSError, ValueError):  # no poll (Windows), or no descriptor (a test's captured output)
-        return False
-    if gone:
-        let_go(sys.stdout)
-    return gone
 
 
 if __name__ == "__main__":

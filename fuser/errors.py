@@ -36,6 +36,12 @@ class NotALogError(UsageError, ValueError):
     """The file given as a log is not one at all (empty, random bytes, text, another format)."""
 
 
+def os_reason(exc: BaseException) -> str:
+    """Why a file could not be written or read, in the system's words (``No space left on device``), else the
+    exception's type and text."""
+    return exc.strerror if isinstance(exc, OSError) and exc.strerror else f"{type(exc).__name__}: {exc}"
+
+
 def log_file_problem(path: str | Path) -> str | None:
     """What keeps ``path``, given as a log to read, from being read as one: a folder, a device or pipe, or nothing
     there; None for a file. Asked before anything opens it: pymavlink would take a missing .tlog for a serial port."""

@@ -629,7 +629,7 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
 
     ``progress``: where to draw a progress bar (only if it is a terminal).
     """
-    from fuser.errors import FuserError
+    from fuser.errors import FuserError, os_reason
     from fuser.progress import progress_bar
     from fuser.record import McapRecorder, RecordWriteError
 
@@ -685,7 +685,7 @@ def write_mcap(data: SensorData, out: str | Path, config_path: str | Path | None
             )
         except OSError as e:  # a full disk: the MCAP is whole, its settings file is not
             cfg.unlink(missing_ok=True)
-            raise FuserError(f"cannot write {cfg}: {e.strerror or e}; {out} was written, its reference field is "
+            raise FuserError(f"cannot write {cfg}: {os_reason(e)}; {out} was written, its reference field is "
                              f"{list(field_ned)} (mag_field_ned_gauss in its metadata)") from e
     return ImportSummary(out, counts[ImuSample], counts[AttitudeSample], truth, dict(decoder.stats), field_ned, cfg,  # type: ignore[arg-type]
                          counts[GnssSample], dict(skipped))

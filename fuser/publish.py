@@ -12,11 +12,8 @@ and endpoints.
 
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import logging
-import os
 import queue
 import re
 import sys
@@ -29,6 +26,7 @@ import zenoh
 
 from .codec import Estimate, MalformedPayload, dumps
 from .errors import EXIT_USAGE, FuserError
+from .streams import let_go
 
 __all__ = [
     "DEFAULT_ENDPOINT",
@@ -284,13 +282,6 @@ MAX_WAITING = 10_000
 fleet's estimates: memory stays bounded)."""
 POLL_S = 0.5
 """How often ``listen`` looks for ignored payloads to tell of while no estimate arrives (s)."""
-
-
-def let_go(out: TextIO) -> None:
-    """Point ``out``'s descriptor at the null device: its reader is gone, and the interpreter's last flush of it would
-    fail again ("Exception ignored ... BrokenPipeError"), as Python's documentation on SIGPIPE advises."""
-    with contextlib.suppress(OSError, ValueError, io.UnsupportedOperation):
-        os.dup2(os.open(os.devnull, os.O_WRONLY), out.fileno())
 
 
 def listen(

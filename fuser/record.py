@@ -32,7 +32,7 @@ from mcap.writer import CompressionType, Writer
 from drivers.samples import Quat, Sample
 
 from .codec import Estimate, decode_sample, dumps, loads, sample_channel, sample_json
-from .errors import FuserError
+from .errors import FuserError, os_reason
 from .frames import BODY_FRAME, TRUTH_OFFSET_NED_M, body_transforms
 from .mcap_scan import McapStream, NotAnMcapError, RawMessage, Skipped, scan_mcap
 
@@ -242,11 +242,6 @@ class RecordWriteError(FuserError):
         self.path, self.reason = path, reason
 
 
-def _reason(exc: BaseException) -> str:
-    """An OS error's own words (``No space left on device``), else the exception's type and text."""
-    return exc.strerror if isinstance(exc, OSError) and exc.strerror else f"{type(exc).__name__}: {exc}"
-
-
 class _ChunkOutput:
     """The file as the mcap ``Writer`` sees it; ``wrote`` turns True when it hands over data.
 
@@ -310,7 +305,7 @@ class McapRecorder:
         except OSError as e:  # a disk already full: no record can follow
             with contextlib.suppress(OSError):
                 self._file.close()
-            raise RecordWriteError(self.path, _reason(e)) from e
+            raise RecordWriteError(self.path, os_reason(e)) from e
         self._output.wrote = False
         self.records_on_disk = 0
         self.rejected: Counter[str] = Counter()
@@ -353,7 +348,7 @@ class McapRecorder:
                 self._file.flush()
         except Exception as e:  # noqa: BLE001 - a disk or writer failure costs this record, not the recording
             if self._stop_on_write_error:
-                raise RecordWriteError(self.path, _reason(e)) from e
+                raise RecordWriteError(self.path, os_reason(e)) from e
             self._reject(topic, "write_failed", f"{type(e).__name__}: {e}")
             return False
         self._sequence[topic] = seq
@@ -426,7 +421,7 @@ class McapRecorder:
             finally:
                 self._file.close()  # closed even when its last flush fails
         except OSError as e:  # a full disk: what is on it stays readable up to its last complete chunk (read_log)
-            raise RecordWriteError(self.path, _reason(e), f"; it holds at least the {self.records_on_disk:,} records written before "
+            raise RecordWriteError(self.path, os_reason(e), f"; it holds at least the {self.records_on_disk:,} records written before "
                                    "(up to its last complete chunk)") from e
         self.records_on_disk = self._count
 

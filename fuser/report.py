@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 from drivers.euler import euler_from_quaternion
 from drivers.samples import AttitudeSample, Quat
 from fuser.codec import Estimate, decode_sample, loads
-from fuser.errors import FuserError, UsageError
+from fuser.errors import FuserError, UsageError, os_reason
 from fuser.evaluate import REGIONS, AttitudeErrors, attitude_errors
 from fuser.frames import orientation_covariance_ned
 from fuser.record import LogContents, LogStream, _quat_wxyz, read_log
@@ -515,7 +515,7 @@ def _write(file: Path, write: Callable[[Path], object]) -> None:
         write(file)
     except OSError as e:
         file.unlink(missing_ok=True)
-        raise FuserError(f"report: cannot write {file}: {e.strerror or e}") from e
+        raise FuserError(f"report: cannot write {file}: {os_reason(e)}") from e
 
 
 def _summary(log_name: str, ref: Reference, err: AttitudeErrors, rms: dict[str, float], coverage: dict[float, float],
